@@ -1,0 +1,139 @@
+"""Discrete-to-continuous conversion by the inverse Tustin (bilinear) map.
+
+The seed paper converts its identified discrete model to continuous time with
+``z = e^(s T) ~ (1 + s T/2) / (1 - s T/2)``.  python-control provides
+``c2d(sys, T, 'tustin')`` but no inverse; :func:`d2c_tustin` is its exact
+inverse (to rounding), including the optional frequency prewarping.
+
+With ``T_w = T`` (no prewarp) or ``T_w = 2 tan(w_p T / 2) / w_p`` (prewarp at
+``w_p = 2 pi prewarp_hz`` rad/s, as in python-control), the forward map is
+
+    Ad = (I - A T_w/2)^-1 (I + A T_w/2),   Bd = (I - A T_w/2)^-1 B T_w,
+    Cd = C (I - A T_w/2)^-1,               Dd = D + C Bd / 2
+
+and its inverse, implemented here, is
+
+    A = (2/T_w) (Ad + I)^-1 (Ad - I),      B = (2/T_w) (Ad + I)^-1 Bd,
+    C = 2 Cd (Ad + I)^-1,                  D = Dd - Cd (Ad + I)^-1 Bd.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._checks import as_matrix, frozen_array, positive_float
+
+__all__ = ["ContinuousModel", "d2c_tustin", "d2c"]
+
+
+@dataclass(frozen=True)
+class ContinuousModel:
+    """Continuous-time state-space matrices ``dx/dt = A x + B u``, ``y = C x + D u``.
+
+    Attributes
+    ----------
+    A : numpy.ndarray, shape (n, n)
+        In 1/s.
+    B : numpy.ndarray, shape (n, n_inputs)
+    C : numpy.ndarray, shape (n_outputs, n)
+    D : numpy.ndarray, shape (n_outputs, n_inputs)
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+
+
+def _warped_period(dt: float, prewarp_hz: float | None) -> float:
+    if prewarp_hz is None:
+        return dt
+    prewarp_hz = positive_float("prewarp_hz", prewarp_hz)
+    if prewarp_hz >= 0.5 / dt:
+        raise ValueError(f"prewarp_hz: expected a frequency below Nyquist {0.5 / dt:g} Hz, got {prewarp_hz:g}")
+    w = 2.0 * np.pi * prewarp_hz
+    return 2.0 * np.tan(w * dt / 2.0) / w
+
+
+def d2c_tustin(A, B, C, D, dt: float, *, prewarp_hz: float | None = None) -> ContinuousModel:
+    """Inverse Tustin transform of discrete state-space matrices.
+
+    Exact inverse of ``control.c2d(sys, dt, 'tustin')`` (and of
+    ``control.c2d(sys, dt, 'tustin', prewarp_frequency=2*pi*prewarp_hz)``).
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    B : array_like, shape (n, n_inputs)
+    C : array_like, shape (n_outputs, n)
+    D : array_like, shape (n_outputs, n_inputs)
+        Discrete-time matrices.
+    dt : float
+        Sample time in s.
+    prewarp_hz : float, optional
+        Frequency (Hz) at which the continuous and discrete responses are
+        made to agree exactly; default none (plain Tustin).
+
+    Returns
+    -------
+    ContinuousModel
+
+    Raises
+    ------
+    ValueError
+        If ``A`` has an eigenvalue at ``z = -1`` (it maps to ``s = inf``).
+    """
+    A = as_matrix("A", A)
+    n = A.shape[0]
+    if A.shape != (n, n):
+        raise ValueError(f"A: expected a square matrix, got shape {A.shape}")
+    B = as_matrix("B", B, rows=n)
+    C = as_matrix("C", C, cols=n)
+    D = as_matrix("D", D, rows=C.shape[0], cols=B.shape[1])
+    dt = positive_float("dt", dt)
+    tw = _warped_period(dt, prewarp_hz)
+    M = A + np.eye(n)
+    if n and np.linalg.cond(M) > 1e12:
+        raise ValueError("A: expected no eigenvalue at z = -1 (Nyquist), got I + A (near) singular")
+    MinvB = np.linalg.solve(M, B)
+    Ac = (2.0 / tw) * np.linalg.solve(M, A - np.eye(n))
+    Bc = (2.0 / tw) * MinvB
+    Cc = 2.0 * np.linalg.solve(M.T, C.T).T
+    Dc = D - C @ MinvB
+    return ContinuousModel(A=frozen_array(Ac), B=frozen_array(Bc), C=frozen_array(Cc), D=frozen_array(Dc))
+
+
+def d2c(sys, *, prewarp_hz: float | None = None):
+    """Convert a discrete model to a continuous ``control.StateSpace`` (Tustin).
+
+    Parameters
+    ----------
+    sys : IdentifiedModel or control.StateSpace
+        Discrete-time model (``dt_s`` attribute, or ``dt > 0`` for
+        python-control).  Signal names of a ``StateSpace`` are kept; the
+        labels of an ``IdentifiedModel`` become input/output names.
+    prewarp_hz : float, optional
+        Prewarp frequency in Hz, see :func:`d2c_tustin`.
+
+    Returns
+    -------
+    control.StateSpace
+        Continuous-time system (``dt = 0``).
+    """
+    import control
+
+    if isinstance(sys, control.StateSpace):
+        if sys.dt is None or sys.dt is True or not sys.dt or sys.dt <= 0:
+            raise ValueError(f"sys: expected a discrete StateSpace with numeric dt > 0, got dt={sys.dt!r}")
+        cm = d2c_tustin(sys.A, sys.B, sys.C, sys.D, float(sys.dt), prewarp_hz=prewarp_hz)
+        return control.ss(cm.A, cm.B, cm.C, cm.D, inputs=sys.input_labels, outputs=sys.output_labels)
+    if hasattr(sys, "dt_s") and hasattr(sys, "A"):
+        cm = d2c_tustin(sys.A, sys.B, sys.C, sys.D, sys.dt_s, prewarp_hz=prewarp_hz)
+        kw = {}
+        if getattr(sys, "input_names", None):
+            kw["inputs"] = list(sys.input_names)
+        if getattr(sys, "output_names", None):
+            kw["outputs"] = list(sys.output_names)
+        return control.ss(cm.A, cm.B, cm.C, cm.D, **kw)
+    raise ValueError(f"sys: expected an IdentifiedModel or discrete control.StateSpace, got {type(sys).__name__}")

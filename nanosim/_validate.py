@@ -1,0 +1,26 @@
+"""Input checks that raise short, specific ``ValueError`` messages before any work."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def as_finite_array(name: str, value, shape: tuple | None = None, ndim: int | None = None) -> np.ndarray:
+    """Return ``value`` as a float array, checking shape and finiteness.
+
+    ``shape`` may contain ``None`` for a free dimension, e.g. ``(None, 3)``.
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a numeric array, got {type(value).__name__}") from None
+    if ndim is not None and arr.ndim != ndim:
+        raise ValueError(f"{name}: expected a {ndim}-D array, got shape {arr.shape}")
+    if shape is not None:
+        ok = arr.ndim == len(shape) and all(s is None or s == a for s, a in zip(shape, arr.shape))
+        if not ok:
+            want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+            raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+        raise ValueError(f"{name}: expected finite values, got {bad} NaN/inf entries")
+    return arr

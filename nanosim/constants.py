@@ -1,0 +1,55 @@
+"""Physical and paper constants, each with its source.
+
+Units are in the names. "Controller volts" are the controller's output before
+the x20 piezo amplifier; "sensor volts" are the capacitance-gauge output
+(5 um/V). Paper = Robust Control of a Parallel-Kinematic Nanopositioner,
+J. Dyn. Sys., Meas., Control 130 (2008), DOI 10.1115/1.2936861.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+# --- control loop (paper Sec. 3) --------------------------------------------
+CONTROL_RATE_HZ = 4000.0
+CONTROL_PERIOD_S = 1.0 / CONTROL_RATE_HZ
+
+# --- piezo and amplifier (paper Sec. 2, APA35XS datasheet values quoted there)
+AMPLIFIER_GAIN = 20.0                      # piezo volts per controller volt
+COMMAND_RANGE_V = (-1.0, 7.5)              # controller volts (paper Sec. 4)
+PIEZO_MAX_V = 150.0                        # piezo volts
+PIEZO_FREE_STROKE_M = 55e-6                # at 150 V
+PIEZO_BLOCKING_FORCE_N = 27.0              # at 150 V
+# Stack stiffness = blocking force / free stroke (linear piezo model).
+PIEZO_STIFFNESS_N_PER_M = PIEZO_BLOCKING_FORCE_N / PIEZO_FREE_STROKE_M   # 4.909e5 N/m
+# Blocked force per piezo volt; the actuator force on the tendon is
+# F = PIEZO_FORCE_PER_V * v_free, with v_free the hysteretic "free-strain voltage".
+PIEZO_FORCE_PER_PIEZO_V = PIEZO_BLOCKING_FORCE_N / PIEZO_MAX_V         # 0.18 N/V
+
+# --- capacitance gauges and ADC (paper Sec. 2-3) -----------------------------
+SENSOR_UM_PER_V = 5.0
+SENSOR_RANGE_UM = 50.0                     # +/-
+SENSOR_NOISE_NM_RMS_1KHZ = 0.3
+ADC_BITS = 16
+ADC_FULL_SCALE_V = 10.0                    # +/-10 V over 2**16 counts
+# One count = 20 V / 2**16 = 0.305 mV = 1.53 nm at 5 um/V ("about 1.5 nm").
+ADC_LSB_V = 2 * ADC_FULL_SCALE_V / 2**ADC_BITS
+ADC_LSB_NM = ADC_LSB_V * SENSOR_UM_PER_V * 1e3
+
+# --- kinematics (paper Eq. 2) ------------------------------------------------
+JACOBIAN_J = np.array([[-2.022, -1.190, 3.212],
+                       [2.542, -3.022, 0.480],
+                       [0.990, 0.990, 0.990]])
+# Target static gain, controller volts -> um: 3.0 um/V * J (G_AX(0) = -1.20 sensor
+# V/V = -6.0 um/V and Fig. 14's -10 um at 1.65 V give the 3.0 scale).
+STATIC_GAIN_SCALE_UM_PER_V = 3.0
+
+# --- identified modes (paper Sec. 3, Fig. 5) --------------------------------
+PAPER_MODES_HZ = (175.0, 179.0, 245.0, 460.0, 474.0, 740.0)
+PAPER_MODE_AXES = ("XY", "XY", "Z", "XY", "XY", "Z")
+
+# --- paper closed-loop figures (Sec. 4-5) -----------------------------------
+PAPER_GAMMA = 1.34
+PAPER_CONTROLLER_ORDER = 19
+PAPER_FIT_PERCENT = np.array([[95.9, 95.2, 96.1], [90.2, 91.8, 95.0], [95.1, 89.9, 88.5]])
+AXES = ("X", "Y", "Z")
+ACTUATORS = ("A", "B", "C")
