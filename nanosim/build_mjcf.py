@@ -38,34 +38,34 @@ class StageParams:
     fourbar1_length: float = 16e-3       # L1: crank pivot -> coupler
     fourbar1_spacing: float = 10e-3      # crank-follower spacing (radial)
     base_pivot_height: float = 5e-3
-    piezo_arm: float = 0.002451              # r_p: crank pivot -> piezo attachment
+    piezo_arm: float = 0.002419              # r_p: crank pivot -> piezo attachment
     piezo_length: float = 20e-3
     rocker_radius: float = 1.2e-3
     # materials (aluminium 7075, paper Sec. 2: monolithic EDM part)
     density: float = 2810.0              # kg/m^3
-    link_density_scale: float = 0.3      # calibrated: lumps flexure blocks not drawn
-    table_extra_mass: float = 0.01999     # kg, calibrated
-    lever_block_mass: float = 0.01097     # kg, actuator mounting block on the lever (calibrated)
+    link_density_scale: float = 0.3034      # calibrated: lumps flexure blocks not drawn
+    table_extra_mass: float = 0.01997     # kg, calibrated
+    lever_block_mass: float = 0.01026     # kg, actuator mounting block on the lever (calibrated)
     lever_block_height: float = 14e-3    # m above the lever pivot
     # stiffness (calibrated on the linearization, see nanosim.calibrate)
-    k_fourbar1: float = 0.9633              # N m/rad per notch hinge
-    k_fourbar2: float = 0.3635
-    k_swing: float = 0.2861                 # h1 and h2
+    k_fourbar1: float = 0.943              # N m/rad per notch hinge
+    k_fourbar2: float = 0.3955
+    k_swing: float = 0.1527                 # h1 and h2
     k_piezo: float = C.PIEZO_STIFFNESS_N_PER_M
-    k_lever: float = 0.2419                 # N m/rad, lever pivot notch hinge
-    k_crank_bend: float = 10.41           # N m/rad, lever -> crank (PRB flexible crank)
+    k_lever: float = 0.1818                 # N m/rad, lever pivot notch hinge
+    k_crank_bend: float = 10.75           # N m/rad, lever -> crank (PRB flexible crank)
     # damping: c = beta * k (stiffness-proportional), seconds
-    beta_hinge: float = 1.924e-06
-    beta_piezo: float = 1.762e-05
+    beta_hinge: float = 1.301e-06
+    beta_piezo: float = 1.781e-05
     # fabrication imperfection: chain A hinges this much stiffer (XY split)
-    chain_a_stiffness_factor: float = 1.08
+    chain_a_stiffness_factor: float = 1.14
     # probes
     probe_gap: float = 0.5e-3
     probe_z_zero_offset: float = 25e-6   # Z gauge zeroed mid-stroke (see README)
     # numerics
     timestep: float = 12.5e-6            # 20 substeps per 250 us control period
     closure_timeconst: float = 25e-6     # 2 x timestep (MuJoCo's floor)
-    closure_dampratio: float = 0.2       # k = 1/(tau*zeta)^2: stiff closure, little added damping
+    closure_dampratio: float = 0.5       # k = 1/(tau*zeta)^2: stiff closure, little added damping
 
     def with_(self, **kw) -> "StageParams":
         return replace(self, **kw)

@@ -1,0 +1,125 @@
+"""Load the stage MJCF, check it has what the simulator needs, apply overrides.
+
+Overrides act on the compiled model so they work for any MJCF that follows
+the naming convention (chains ``a``, ``b``, ``c``; joints ``{chain}_crank``,
+``{chain}_h1``...; actuators ``piezo_{chain}``; sites ``cube_face_{x,y,z}``).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Mapping
+
+import mujoco
+import numpy as np
+
+REPO_MJCF_DIR = Path(__file__).resolve().parent.parent / "mjcf"
+DEFAULT_MJCF = REPO_MJCF_DIR / "scene.xml"
+
+REQUIRED_ACTUATORS = ("piezo_a", "piezo_b", "piezo_c")
+REQUIRED_SITES = ("cube_face_x", "cube_face_y", "cube_face_z", "table_center",
+                  "probe_x", "probe_y", "probe_z")
+REQUIRED_SENSORS = ("probe_x", "probe_y", "probe_z")
+
+# hinge families by joint-name suffix (see mjcf/README.md)
+HINGE_FAMILIES = {
+    "fourbar1": ("_crank", "_foot"),
+    "fourbar2": ("_rocker_p", "_leg_top"),
+    "swing": ("_h1",),
+    "lever": ("_lever",),
+}
+
+
+def default_mjcf() -> Path:
+    """Bundled scene, or ``$NANOSIM_MJCF`` when set."""
+    env = os.environ.get("NANOSIM_MJCF")
+    return Path(env) if env else DEFAULT_MJCF
+
+
+def load_model(path: str | os.PathLike | None = None, *,
+               stiffness_scale: Mapping[str, float] | None = None,
+               body_mass_kg: Mapping[str, float] | None = None) -> mujoco.MjModel:
+    """Compile the stage model and check it.
+
+    Parameters
+    ----------
+    path : MJCF file; default the bundled ``mjcf/scene.xml``.
+    stiffness_scale : {family: factor} scales stiffness and damping of a hinge
+        family (``fourbar1``, ``fourbar2``, ``swing``, ``lever``) or of a
+        tendon by name (e.g. ``a_crank_bend``, ``a_piezo``).
+    body_mass_kg : {body: mass} sets a body's mass, scaling its inertia alike.
+
+    Raises
+    ------
+    FileNotFoundError : the file does not exist.
+    ValueError : the XML is malformed or lacks the stage's actuators/sensors,
+        or an override names something that does not exist.
+    """
+    path = Path(path) if path is not None else default_mjcf()
+    if not path.is_file():
+        raise FileNotFoundError(f"mjcf: no such file {str(path)!r} (expected a MuJoCo XML model)")
+    try:
+        model = mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "parse error"
+        raise ValueError(f"mjcf: {path} is not a valid MuJoCo model: {first}") from None
+    check_model(model, str(path))
+    if stiffness_scale:
+        _scale_stiffness(model, stiffness_scale)
+    if body_mass_kg:
+        for name, mass in body_mass_kg.items():
+            bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+            if bid < 0:
+                raise ValueError(f"body_mass_kg: no body named {name!r} in the model")
+            if not (np.isfinite(mass) and mass > 0):
+                raise ValueError(f"body_mass_kg[{name!r}]: expected a positive mass in kg, got {mass!r}")
+            factor = mass / model.body_mass[bid]
+            model.body_mass[bid] = mass
+            model.body_inertia[bid] *= factor
+        mujoco.mj_setConst(model, mujoco.MjData(model))
+    return model
+
+
+def check_model(model: mujoco.MjModel, origin: str = "model") -> None:
+    """Raise ValueError if the model lacks what the stage simulator needs."""
+    def missing(objtype, names):
+        return [n for n in names if mujoco.mj_name2id(model, objtype, n) < 0]
+
+    for label, objtype, names in (("actuators", mujoco.mjtObj.mjOBJ_ACTUATOR, REQUIRED_ACTUATORS),
+                                  ("sites", mujoco.mjtObj.mjOBJ_SITE, REQUIRED_SITES),
+                                  ("sensors", mujoco.mjtObj.mjOBJ_SENSOR, REQUIRED_SENSORS)):
+        gone = missing(objtype, names)
+        if gone:
+            raise ValueError(f"mjcf: {origin} lacks the stage's {label} {gone} "
+                             f"(expected {list(names)})")
+
+
+def _scale_stiffness(model: mujoco.MjModel, scale: Mapping[str, float]) -> None:
+    for key, factor in scale.items():
+        if not (np.isfinite(factor) and factor > 0):
+            raise ValueError(f"stiffness_scale[{key!r}]: expected a positive factor, got {factor!r}")
+        hit = False
+        if key in HINGE_FAMILIES:
+            for j in range(model.njnt):
+                if model.joint(j).name.endswith(HINGE_FAMILIES[key]):
+                    model.jnt_stiffness[j] *= factor
+                    model.dof_damping[model.jnt_dofadr[j]] *= factor
+                    hit = True
+        else:
+            tid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, key)
+            if tid >= 0:
+                model.tendon_stiffness[tid] *= factor
+                model.tendon_damping[tid] *= factor
+                hit = True
+        if not hit:
+            raise ValueError(f"stiffness_scale: {key!r} is neither a hinge family "
+                             f"{sorted(HINGE_FAMILIES)} nor a tendon name")
+
+
+def custom_numeric(model: mujoco.MjModel, name: str, default) -> np.ndarray:
+    """A ``<custom><numeric>`` value from the MJCF, or ``default``."""
+    nid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, name)
+    if nid < 0:
+        return np.atleast_1d(np.asarray(default, dtype=float))
+    adr, size = model.numeric_adr[nid], model.numeric_size[nid]
+    return model.numeric_data[adr:adr + size].copy()

@@ -1,0 +1,191 @@
+"""Modal analysis of the MuJoCo stage about its home keyframe.
+
+The plant is linearized by MuJoCo itself (``mjd_transitionFD``, centred
+differences, one integrator step of ``model.opt.timestep``); the discrete
+eigenvalues mu map to continuous ones by lambda = log(mu) / dt. The soft loop
+closures add stiff "constraint modes"; a mode is flagged as one when its
+shape violates the closures (||G phi|| / ||phi|| above ``CONSTRAINT_RATIO``)
+and excluded from :attr:`ModalResult.physical`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from . import constants as C
+from .mechanics import home_data, mechanical_matrices
+from .model import custom_numeric
+
+CONSTRAINT_RATIO = 0.05
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One vibration mode.
+
+    freq_hz : undamped natural frequency |lambda| / 2 pi (Hz).
+    damping_ratio : -Re(lambda) / |lambda|.
+    axis : 'X', 'Y', 'Z' or 'XY' from the probe participation.
+    sensor_participation : (3,) probe X, Y, Z share of this mode's static
+        contribution, relative to the strongest mode's largest entry.
+    is_constraint : the shape violates the loop closures (numerical mode).
+    shape_q : (nv,) joint-space shape (real part, unit max-norm).
+    """
+
+    freq_hz: float
+    damping_ratio: float
+    axis: str
+    sensor_participation: np.ndarray
+    is_constraint: bool
+    constraint_ratio: float
+    shape_q: np.ndarray
+
+    def to_json(self) -> dict:
+        return {"freq_hz": float(self.freq_hz), "damping_ratio": float(self.damping_ratio),
+                "axis": self.axis, "sensor_participation": [float(v) for v in self.sensor_participation],
+                "is_constraint": bool(self.is_constraint)}
+
+
+@dataclass(frozen=True)
+class ModalResult:
+    """All modes of the linearized stage, sorted by frequency.
+
+    static_gain_um_per_V : (3, 3) probe displacement per controller volt
+        (x20 amplifier and linear piezo included), rows X, Y, Z, columns A, B, C.
+    body_names : names matching the rows of :meth:`body_displacement`.
+    body_jacobians : (nbody, 3, nv) body-origin displacement per joint displacement.
+    """
+
+    modes: tuple[Mode, ...]
+    static_gain_um_per_V: np.ndarray
+    timestep_s: float
+    body_names: tuple[str, ...]
+    body_jacobians: np.ndarray
+
+    @property
+    def physical(self) -> tuple[Mode, ...]:
+        return tuple(m for m in self.modes if not m.is_constraint)
+
+    def below(self, freq_hz: float) -> tuple[Mode, ...]:
+        return tuple(m for m in self.physical if m.freq_hz < freq_hz)
+
+    def body_displacement(self, mode: Mode) -> np.ndarray:
+        """(nbody, 3) body-origin displacement of a mode shape (same scale as shape_q)."""
+        return self.body_jacobians @ mode.shape_q
+
+    @property
+    def lowest_constraint_hz(self) -> float:
+        f = [m.freq_hz for m in self.modes if m.is_constraint]
+        return float(min(f)) if f else float("inf")
+
+
+def _axis_label(part: np.ndarray) -> str:
+    xy, z = np.hypot(part[0], part[1]), part[2]
+    if z > xy:
+        return "Z"
+    if part[0] > 4 * part[1]:
+        return "X"
+    if part[1] > 4 * part[0]:
+        return "Y"
+    return "XY"
+
+
+def volts_to_force_N() -> float:
+    """Tendon force per controller volt for a linear piezo: 20 x 27 N / 150 V."""
+    return C.AMPLIFIER_GAIN * C.PIEZO_FORCE_PER_PIEZO_V
+
+
+def linearize_fd(model: mujoco.MjModel, eps: float = 1e-8):
+    """MuJoCo's discrete linearization at home: (A (2nv, 2nv), B (2nv, nu))."""
+    data = home_data(model)
+    nx = 2 * model.nv + model.na
+    A = np.zeros((nx, nx))
+    B = np.zeros((nx, model.nu))
+    mujoco.mjd_transitionFD(model, data, eps, True, A, B, None, None)
+    return A, B
+
+
+def modal_analysis(model: mujoco.MjModel) -> ModalResult:
+    """Linearize about ``home`` and return every mode with its classification."""
+    nv, dt = model.nv, model.opt.timestep
+    A, B = linearize_fd(model)
+    mm = mechanical_matrices(model)
+    mu, V = np.linalg.eig(A)
+    W = np.linalg.inv(V)
+    lam = np.log(mu.astype(complex)) / dt
+    Cx = np.hstack([mm.probe, np.zeros((3, nv + model.na))])
+    Bc = B / dt
+    gain_static = Cx @ np.linalg.solve(np.eye(A.shape[0]) - A, B)       # m per N
+    static_um_per_V = gain_static * volts_to_force_N() * 1e6
+    entries = []
+    for i in np.flatnonzero(lam.imag > 1e-6):
+        v = V[:nv, i]
+        res = (Cx @ V[:, i:i + 1]) @ (W[i:i + 1, :] @ Bc)             # residue (3, nu)
+        contrib = 2 * np.abs(res) / np.abs(lam[i]) ** 2                # pair, static
+        shape = np.real(v * np.exp(-1j * np.angle(v[np.argmax(np.abs(v))])))
+        shape = shape / np.max(np.abs(shape))
+        ratio = np.linalg.norm(mm.G @ shape) / max(np.linalg.norm(shape), 1e-300) if mm.G.size else 0.0
+        entries.append((abs(lam[i]) / (2 * np.pi), -lam[i].real / abs(lam[i]),
+                        np.linalg.norm(contrib, axis=1), ratio, shape))
+    strongest = max((e[2].max() for e in entries if e[3] < CONSTRAINT_RATIO), default=1.0)
+    modes = tuple(sorted((Mode(freq_hz=float(f), damping_ratio=float(z), axis=_axis_label(p),
+                               sensor_participation=p / strongest, is_constraint=bool(r >= CONSTRAINT_RATIO),
+                               constraint_ratio=float(r), shape_q=s)
+                          for f, z, p, r, s in entries), key=lambda m: m.freq_hz))
+    data = home_data(model)
+    names, jacs = [], []
+    jacp = np.zeros((3, nv))
+    for b in range(1, model.nbody):
+        mujoco.mj_jacBody(model, data, jacp, None, b)
+        names.append(model.body(b).name)
+        jacs.append(jacp.copy())
+    return ModalResult(modes=modes, static_gain_um_per_V=static_um_per_V, timestep_s=dt,
+                       body_names=tuple(names), body_jacobians=np.array(jacs))
+
+
+def probe_readings_um(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """Probe readings (um) from the framepos sensors, zeroed as in the MJCF custom data."""
+    gap = custom_numeric(model, "probe_gap_m", 0.0)[0]
+    offset = custom_numeric(model, "probe_zero_offset_m", [0.0, 0.0, 0.0])
+    out = np.empty(3)
+    for i, ax in enumerate("xyz"):
+        adr = model.sensor_adr[model.sensor(f"probe_{ax}").id]
+        out[i] = data.sensordata[adr + i] + gap - offset[i]
+    return out * 1e6
+
+
+def constraint_violation_ratio(model: mujoco.MjModel, volts=(7.5, -1.0, -1.0), settle_s: float = 0.15) -> float:
+    """Closure violation at full stroke relative to the table displacement.
+
+    Drives the actuators with a smooth ramp to ``volts`` (controller volts,
+    linear piezo), settles, and returns max closure error (as a length: angle
+    errors times the leg length) over the table displacement.
+    """
+    data = home_data(model)
+    x0 = data.site("table_center").xpos.copy()
+    n = int(round(settle_s / model.opt.timestep))
+    ramp = 0.5 * (1 - np.cos(np.pi * np.minimum(np.arange(n) / (0.5 * n), 1.0)))
+    force = np.asarray(volts) * volts_to_force_N()
+    for k in range(n):
+        data.ctrl[:] = ramp[k] * force
+        mujoco.mj_step(model, data)
+    disp = np.linalg.norm(data.site("table_center").xpos - x0)
+    eq = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+    lever = 20e-3
+    err = np.abs(data.efc_pos[eq]).max() * lever if eq.any() else 0.0
+    # weld translation rows are already lengths; the angle scaling above is the larger bound
+    return float(err / disp)
+
+
+def modes_json(model: mujoco.MjModel, fmax_hz: float = 1000.0) -> dict:
+    """The dict printed by ``nanosim modes --json``."""
+    res = modal_analysis(model)
+    return {
+        "modes": [m.to_json() for m in res.below(fmax_hz)],
+        "static_gain_um_per_V": res.static_gain_um_per_V.tolist(),
+        "constraint_violation_ratio": constraint_violation_ratio(model),
+        "lowest_constraint_mode_hz": res.lowest_constraint_hz,
+        "units": {"freq_hz": "Hz", "static_gain_um_per_V": "um per controller volt (x20 amplifier, linear piezo)"},
+    }
