@@ -189,3 +189,47 @@ def modes_json(model: mujoco.MjModel, fmax_hz: float = 1000.0) -> dict:
         "lowest_constraint_mode_hz": res.lowest_constraint_hz,
         "units": {"freq_hz": "Hz", "static_gain_um_per_V": "um per controller volt (x20 amplifier, linear piezo)"},
     }
+
+
+def exaggerated_body_positions(model: mujoco.MjModel, shape_q: np.ndarray, scale: float) -> np.ndarray:
+    """(nbody, 3) body positions (m) with q = q_home + scale * shape (joint space, then FK)."""
+    data = home_data(model)
+    q0 = data.qpos.copy()
+    data.qpos[:] = q0 + scale * shape_q
+    mujoco.mj_kinematics(model, data)
+    return data.xpos.copy()
+
+
+def plot_mode_shapes(model: mujoco.MjModel, result: ModalResult, out_dir, fmax_hz: float = 1000.0,
+                     rotation_rad: float = 0.05) -> list:
+    """Write one PNG per physical mode below ``fmax_hz``: home (grey) vs exaggerated shape."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ._io import save_figure
+
+    paths = []
+    home = exaggerated_body_positions(model, np.zeros(model.nv), 0.0) * 1e3
+    parent = model.body_parentid
+    for i, mode in enumerate(result.below(fmax_hz)):
+        moved = exaggerated_body_positions(model, mode.shape_q, rotation_rad) * 1e3
+        fig = plt.figure(figsize=(6.4, 5.2))
+        ax = fig.add_subplot(projection="3d")
+        for pos, style in ((home, dict(color="0.7", lw=1.0)), (moved, dict(color="tab:red", lw=2.0))):
+            for b in range(2, model.nbody):
+                p = parent[b]
+                if p <= 1:
+                    continue
+                ax.plot(*np.stack([pos[p], pos[b]]).T, **style)
+        tb = model.body("table").id
+        ax.scatter(*moved[tb], color="tab:orange", s=40, label="table (exaggerated)")
+        ax.scatter(*home[tb], color="0.4", s=20, label="table (home)")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_zlabel("z (mm)")
+        ax.set_title(f"Mode {i + 1}: {mode.freq_hz:.1f} Hz, zeta {mode.damping_ratio:.4f}, axis {mode.axis}\n"
+                     f"largest hinge rotation exaggerated to {rotation_rad:.2f} rad")
+        ax.legend(loc="upper left", fontsize=8)
+        paths.append(save_figure(fig, f"{out_dir}/mode_{i + 1:02d}_{mode.freq_hz:.0f}Hz.png"))
+    return paths

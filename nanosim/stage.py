@@ -1,0 +1,201 @@
+"""The sampled stage: MuJoCo mechanics + piezo + electronics at 4 kHz.
+
+``Stage.step(u_V)`` applies three controller volts with zero-order hold for
+one 250 us control period (MuJoCo substeps evenly inside it) and returns the
+three probe readings in sensor volts (5 um/V) at the end of the period.
+``Stage.run`` and :func:`run_open_loop_batch` do the same for whole command
+arrays; the batch runner uses ``mujoco.rollout`` threads.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from . import constants as C
+from ._validate import as_finite_array
+from .electronics import ActuatorChain, ElectronicsConfig, SensorChain
+from .mechanics import home_data
+from .model import custom_numeric, load_model
+from .piezo import PiezoConfig
+
+
+@dataclass(frozen=True)
+class StageConfig:
+    """Electromechanics switches; ``StageConfig()`` has every effect on."""
+
+    electronics: ElectronicsConfig = field(default_factory=lambda: ElectronicsConfig(dac_noise_V=DAC_NOISE_V))
+    piezo: PiezoConfig = field(default_factory=PiezoConfig)
+
+    @classmethod
+    def ideal(cls) -> "StageConfig":
+        """Linear plant: no noise, quantization, saturation, hysteresis or creep."""
+        return cls(electronics=ElectronicsConfig.ideal(), piezo=PiezoConfig.linear())
+
+
+# DAC noise (controller volts rms per sample) calibrated so the open-loop probe
+# sigma at rest is 11.4 nm (paper Sec. 5); see tests/test_stage.py.
+DAC_NOISE_V = 3.1e-4
+
+
+@dataclass(frozen=True)
+class Trace:
+    """A sampled record; row k holds the command applied over [t_k, t_k + T)
+    and the reading at t_k + T.
+
+    t_s (N,) time at the end of each period, s; u_V (N, 3) controller command;
+    piezo_V (N, 3) amplifier output; saturated (N, 3) command clipped;
+    table_um (N, 3) true probe-axis displacement (no noise); sensor_V (N, 3)
+    ADC reading in sensor volts; sensor_um (N, 3) the same in um;
+    clipped (N, 3) gauge out of range.
+    """
+
+    t_s: np.ndarray
+    u_V: np.ndarray
+    piezo_V: np.ndarray
+    saturated: np.ndarray
+    table_um: np.ndarray
+    sensor_V: np.ndarray
+    sensor_um: np.ndarray
+    clipped: np.ndarray
+
+    def as_arrays(self) -> dict[str, np.ndarray]:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+class Stage:
+    """Bundled stage with every effect on (``Stage()``), or as configured.
+
+    Parameters
+    ----------
+    seed : master seed for DAC and gauge noise.
+    config : :class:`StageConfig`.
+    mjcf : path to another stage MJCF; ``model`` : an already-loaded MjModel.
+    """
+
+    def __init__(self, seed: int = 0, config: StageConfig | None = None, mjcf=None,
+                 model: mujoco.MjModel | None = None):
+        self.config = config or StageConfig()
+        self.seed = seed
+        self.model = model if model is not None else load_model(mjcf)
+        self.dt_s = 1.0 / self.config.electronics.sample_rate_Hz
+        ratio = self.dt_s / self.model.opt.timestep
+        self.substeps = int(round(ratio))
+        if abs(ratio - self.substeps) > 1e-9 * ratio:
+            raise ValueError(f"mjcf: timestep {self.model.opt.timestep} s must divide the control period "
+                             f"{self.dt_s} s evenly")
+        self._probe_adr = np.array([self.model.sensor_adr[self.model.sensor(f"probe_{a}").id] + i
+                                    for i, a in enumerate("xyz")])
+        self._probe_bias_m = (custom_numeric(self.model, "probe_gap_m", 0.0)[0]
+                              - custom_numeric(self.model, "probe_zero_offset_m", [0, 0, 0]))
+        self._force_per_V = float(custom_numeric(self.model, "piezo_force_per_volt_N",
+                                                 C.PIEZO_FORCE_PER_PIEZO_V)[0])
+        self.data = home_data(self.model)
+        self.reset()
+
+    # -- state -------------------------------------------------------------
+    def reset(self) -> None:
+        """Home keyframe, virgin piezo, noise streams rewound to the seed."""
+        self.data = home_data(self.model)
+        self.actuators = ActuatorChain(self.config.electronics, self.config.piezo, seed=self.seed)
+        self.sensors = SensorChain(self.config.electronics, seed=self.seed)
+        self.time_s = 0.0
+        self.last_piezo_V = np.zeros(3)
+        self.last_saturated = np.zeros(3, dtype=bool)
+        self.last_clipped = np.zeros(3, dtype=bool)
+        self.table_um = self._probe_um()
+
+    def _probe_um(self) -> np.ndarray:
+        return (self.data.sensordata[self._probe_adr] + self._probe_bias_m) * 1e6
+
+    # -- stepping ------------------------------------------------------------
+    def step(self, u_V) -> np.ndarray:
+        """Apply controller volts (3,) for one period; return sensor volts (3,)."""
+        u = as_finite_array("u_V", u_V, shape=(3,))
+        act = self.actuators.step(u)
+        self.data.ctrl[:] = self._force_per_V * act.v_free_V
+        mujoco.mj_step(self.model, self.data, self.substeps)
+        self.time_s += self.dt_s
+        self.table_um = self._probe_um()
+        sens = self.sensors.step(self.table_um)
+        self.last_piezo_V = act.v_piezo_V
+        self.last_saturated = act.saturated
+        self.last_clipped = sens.clipped
+        return sens.reading_V
+
+    def run(self, u_V) -> Trace:
+        """Open-loop run of an (N, 3) command array from the current state."""
+        u = as_finite_array("u_V", u_V, shape=(None, 3))
+        act = self.actuators.run(u)
+        table = _rollout(self.model, [self.data], self.data, self._force_per_V * act.v_free_V[None],
+                         self.substeps, self._probe_adr, self._probe_bias_m)[0]
+        sens = self.sensors.run(table)
+        n = len(u)
+        t = self.time_s + self.dt_s * np.arange(1, n + 1)
+        self.time_s = float(t[-1]) if n else self.time_s
+        if n:
+            self.table_um = table[-1]
+            self.last_piezo_V = act.v_piezo_V[-1]
+        return Trace(t_s=t, u_V=u, piezo_V=act.v_piezo_V, saturated=act.saturated, table_um=table,
+                     sensor_V=sens.reading_V, sensor_um=sens.reading_um, clipped=sens.clipped)
+
+
+_CHUNK = 1000  # control periods per rollout call (bounds memory: states are per substep)
+
+
+def _rollout(model, datas, start: mujoco.MjData, forces: np.ndarray, substeps: int,
+             probe_adr: np.ndarray, bias_m: np.ndarray) -> np.ndarray:
+    """Roll out (B, N, 3) tendon forces held over ``substeps``; return (B, N, 3) probe um.
+
+    ``start`` is advanced to the final state of trajectory 0 (single-trajectory use).
+    """
+    nb, n, _ = forces.shape
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    size = mujoco.mj_stateSize(model, spec)
+    state0 = np.empty(size)
+    mujoco.mj_getState(model, start, state0, spec)
+    states = np.tile(state0, (nb, 1))
+    out = np.empty((nb, n, 3))
+    for k0 in range(0, n, _CHUNK):
+        k1 = min(n, k0 + _CHUNK)
+        ctrl = np.repeat(forces[:, k0:k1], substeps, axis=1)
+        st, sd = rollout.rollout(model, datas, states, ctrl, skip_checks=False)
+        out[:, k0:k1] = (sd[:, substeps - 1::substeps, :][:, :, probe_adr] + bias_m) * 1e6
+        states = st[:, -1, :].copy()
+    if nb:
+        mujoco.mj_setState(model, start, states[0], spec)
+        mujoco.mj_forward(model, start)
+    return out
+
+
+def run_open_loop_batch(u_batch, *, seeds, config: StageConfig | None = None, mjcf=None,
+                        model: mujoco.MjModel | None = None, nthread: int | None = None) -> list[Trace]:
+    """Run B independent open-loop experiments in parallel with ``mujoco.rollout``.
+
+    Parameters
+    ----------
+    u_batch : (B, N, 3) controller volts, each experiment from the home state.
+    seeds : B seeds, one Stage seed per experiment.
+    """
+    u = as_finite_array("u_batch", u_batch, shape=(None, None, 3))
+    seeds = list(seeds)
+    if len(seeds) != u.shape[0]:
+        raise ValueError(f"seeds: expected {u.shape[0]} seeds (one per experiment), got {len(seeds)}")
+    stages = [Stage(seed=s, config=config, mjcf=mjcf, model=model) for s in seeds]
+    acts = [st.actuators.run(ui) for st, ui in zip(stages, u)]
+    forces = np.stack([st._force_per_V * a.v_free_V for st, a in zip(stages, acts)])
+    st0 = stages[0]
+    nthread = nthread or max(1, min(len(seeds), os.cpu_count() or 1))
+    datas = [mujoco.MjData(st0.model) for _ in range(nthread)]
+    table = _rollout(st0.model, datas, home_data(st0.model), forces, st0.substeps, st0._probe_adr,
+                     st0._probe_bias_m)
+    traces = []
+    t = st0.dt_s * np.arange(1, u.shape[1] + 1)
+    for st, ui, a, tb in zip(stages, u, acts, table):
+        sens = st.sensors.run(tb)
+        traces.append(Trace(t_s=t, u_V=ui, piezo_V=a.v_piezo_V, saturated=a.saturated, table_um=tb,
+                            sensor_V=sens.reading_V, sensor_um=sens.reading_um, clipped=sens.clipped))
+    return traces
