@@ -56,7 +56,7 @@ Creep -- series Kelvin-Voigt elements (linear creep)
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -283,7 +283,7 @@ class PrandtlIshlinskii:
         vc = v[:, None]
         z = np.minimum(np.maximum(self._z, vc - self._r), vc + self._r)
         self._z = z
-        return self._w0 * v + (z * self._w).sum(axis=-1)
+        return self._w0 * v + np.add.reduce(z * self._w, axis=-1)
 
     def run(self, v_V) -> np.ndarray:
         """Advance over a sequence. ``v_V`` shape ``(N, n_channels)``; returns ``h``."""
@@ -308,7 +308,7 @@ class PrandtlIshlinskii:
                 maximum(z, lo[m], out=zm)
                 minimum(zm, hi[m], out=zm)
                 z = zm
-            out[start:start + vb.shape[0]] = self._w0 * vb + (zb * self._w).sum(axis=-1)
+            out[start:start + vb.shape[0]] = self._w0 * vb + np.add.reduce(zb * self._w, axis=-1)
             z = z.copy()
         self._z = z
         return out
@@ -352,6 +352,8 @@ class KelvinVoigtCreep:
         self._a_col = self._a[:, None]
         self._b_col = self._b[:, None]
         self._scale = 1.0 / (1.0 + float(c.sum())) if normalize_dc else 1.0
+        # Output y = s*h + sum_k (s*c_k) x_k, accumulated in stage order (step and run alike).
+        self._sc = [self._scale * float(ck) for ck in c]
         self._x = np.zeros((c.size, self.n_channels))
 
     @property
@@ -369,26 +371,27 @@ class KelvinVoigtCreep:
 
     def _step(self, h: np.ndarray) -> np.ndarray:
         x = self._x
-        acc = h.copy()
-        for k in range(self._c.size):
-            acc += self._c[k] * x[k]
+        acc = self._scale * h
+        for k, sck in enumerate(self._sc):
+            acc += sck * x[k]
         self._x = self._a_col * x + self._b_col * h
-        return acc * self._scale
+        return acc
 
     def run(self, h) -> np.ndarray:
         """Advance over a sequence; ``h`` shape ``(N, n_channels)``."""
         return self._run(as_finite_array("h", h, shape=(None, self.n_channels)))
 
     def _run(self, h: np.ndarray) -> np.ndarray:
-        acc = h.copy()
+        acc = self._scale * h
         xf = np.empty_like(self._x)
-        for k in range(self._c.size):
+        for k, sck in enumerate(self._sc):
+            # x_k[n+1] = a x_k[n] + b h[n]; lfilter's output is x_k[n] (state before sample n).
             xk, zf = lfilter([0.0, self._b[k]], [1.0, -self._a[k]], h, axis=0,
                              zi=self._x[k][None, :])
-            acc += self._c[k] * xk
+            acc += sck * xk
             xf[k] = zf[0]
         self._x = xf
-        return acc * self._scale
+        return acc
 
 
 class PiezoModel:
@@ -428,7 +431,9 @@ class PiezoModel:
 
     def _step(self, v: np.ndarray) -> np.ndarray:
         h = self.hysteresis._step(v) if self.hysteresis is not None else v
-        return self.creep._step(h) if self.creep is not None else h
+        if self.creep is not None:
+            return self.creep._step(h)
+        return h if self.hysteresis is not None else h.copy()
 
     def run(self, v_piezo_V) -> np.ndarray:
         """Free-strain voltage over a sequence; ``v_piezo_V`` shape ``(N, n_channels)``."""
@@ -436,7 +441,9 @@ class PiezoModel:
 
     def _run(self, v: np.ndarray) -> np.ndarray:
         h = self.hysteresis._run(v) if self.hysteresis is not None else v
-        return self.creep._run(h) if self.creep is not None else h
+        if self.creep is not None:
+            return self.creep._run(h)
+        return h if self.hysteresis is not None else h.copy()
 
 
 def loop_hysteresis_percent(v_in, y_out, n_grid: int = 2001) -> tuple[float, float]:

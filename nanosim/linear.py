@@ -1,0 +1,117 @@
+"""Linear twin of the stage: small-signal plant from MuJoCo's own linearization.
+
+``linearize(stage)`` returns python-control state-space models from
+controller volts (A, B, C) to sensor volts (5 um/V) or to um:
+
+1. ``mjd_transitionFD`` gives the one-substep map x+ = Ad x + Bd f (f in N).
+2. A real Schur form of Ad ordered by |log(mu)| / h and a Sylvester solve
+   split it into the physical band (below ``f_cut_hz``) and the fast closure
+   modes; the fast part is residualised (its DC gain moved into D), so the DC
+   gain is exact and the twin has a dozen states.
+3. The slow block becomes continuous by Ac = log(A11) / h,
+   Bc = (A11 - I)^-1 Ac B1, the exact inverse of a zero-order hold over h.
+4. Inputs are scaled by the amplifier and piezo force (20 x 27 N / 150 V per
+   controller volt; optionally the piezo's small-signal gain and creep filter),
+   outputs by 1e6 um/m and 1 / 5 sensor V per um.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import control as ct
+import numpy as np
+import scipy.linalg as sla
+
+from . import constants as C
+from .mechanics import mechanical_matrices
+from .modes import linearize_fd, volts_to_force_N
+
+
+@dataclass(frozen=True)
+class LinearTwin:
+    """Small-signal plant of a Stage.
+
+    sys_V : continuous, controller V -> sensor V (3x3).
+    sys_um : continuous, controller V -> um (3x3).
+    sysd_V : discrete at the control period (ZOH), controller V -> sensor V.
+    dt_s : control period (s).
+    """
+
+    sys_V: ct.StateSpace
+    sys_um: ct.StateSpace
+    sysd_V: ct.StateSpace
+    dt_s: float
+
+    @property
+    def dc_gain_um_per_V(self) -> np.ndarray:
+        return np.real(ct.dcgain(self.sys_um))
+
+
+def _slow_continuous(Ad: np.ndarray, Bd: np.ndarray, Cm: np.ndarray, h: float, f_cut_hz: float):
+    """Continuous model of the slow modes of a substep map, fast modes residualised.
+
+    The split is done on the discrete map (ordered real Schur form + Sylvester
+    solve) because the stiffest closure modes of the implicit integrator have
+    negative real multipliers, where log(Ad) has no real continuous meaning.
+    """
+    wcut = 2 * np.pi * f_cut_hz
+
+    def slow(re, im):
+        mu = complex(re, im)
+        return mu != 0 and abs(np.log(mu)) / h < wcut
+
+    T, Q, k = sla.schur(Ad, output="real", sort=slow)
+    A11, A12, A22 = T[:k, :k], T[:k, k:], T[k:, k:]
+    X = sla.solve_sylvester(A11, -A22, -A12)
+    Bt = Q.T @ Bd
+    Ct = Cm @ Q
+    B1 = Bt[:k] - X @ Bt[k:]
+    C1 = Ct[:, :k]
+    C2 = Ct[:, :k] @ X + Ct[:, k:]
+    D = C2 @ np.linalg.solve(np.eye(len(A22)) - A22, Bt[k:])     # fast part at steady state
+    mu, V = np.linalg.eig(A11)
+    Ac = np.real(V @ np.diag(np.log(mu)) @ np.linalg.inv(V)) / h
+    Bc = np.linalg.solve(A11 - np.eye(k), Ac @ B1)                # exact ZOH inverse
+    return Ac, Bc, C1, D
+
+
+def linearize(stage, f_cut_hz: float = 2500.0, include_piezo: bool = False) -> LinearTwin:
+    """Linear twin of ``stage`` about its home keyframe.
+
+    Parameters
+    ----------
+    stage : :class:`nanosim.stage.Stage` (its ``model`` is linearized).
+    f_cut_hz : modes above this (the soft-closure modes) are residualised.
+    include_piezo : also include the piezo's small-signal hysteresis gain and
+        the creep filter of ``stage.config.piezo`` (default: linear piezo,
+        the "ideal" stage with every effect off).
+    """
+    model = stage.model
+    h = model.opt.timestep
+    Ad, Bd = linearize_fd(model)
+    nv = model.nv
+    probe = mechanical_matrices(model).probe
+    Cm = np.hstack([probe, np.zeros((3, Ad.shape[0] - nv))])
+    A, B, Cm_s, D = _slow_continuous(Ad, Bd, Cm, h, f_cut_hz)
+    gain_in = volts_to_force_N()
+    sys_m = ct.ss(A, B * gain_in, Cm_s, D * gain_in)
+    if include_piezo:
+        sys_m = sys_m * _piezo_small_signal(stage)
+    sys_um = sys_m * 1e6
+    sys_V = sys_um * (1.0 / C.SENSOR_UM_PER_V)
+    dt = stage.dt_s
+    return LinearTwin(sys_V=sys_V, sys_um=sys_um, sysd_V=ct.c2d(sys_V, dt, "zoh"), dt_s=dt)
+
+
+def _piezo_small_signal(stage) -> ct.StateSpace:
+    """3x3 diagonal small-signal piezo model: gain w0 times the creep filter."""
+    cfg = stage.config.piezo
+    gain = cfg.small_signal_gain() if cfg.hysteresis else 1.0
+    tf = ct.tf([gain], [1.0])
+    if cfg.creep:
+        s0 = 1.0 / (1.0 + sum(cfg.creep_gains)) if cfg.normalize_creep_dc else 1.0
+        filt = ct.tf([1.0], [1.0])
+        for c_k, tau in zip(cfg.creep_gains, cfg.creep_time_constants_s):
+            filt = filt + ct.tf([c_k], [tau, 1.0])
+        tf = tf * filt * s0
+    return ct.ss(ct.append(*(ct.ss(tf) for _ in range(3))))

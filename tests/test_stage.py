@@ -1,0 +1,160 @@
+"""The sampled stage (issue 3): electromechanics on the MuJoCo plant and its linear twin."""
+import control as ct
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+from scipy.signal import max_len_seq
+
+from nanosim import constants as C
+from nanosim.electronics import ElectronicsConfig
+from nanosim.linear import linearize
+from nanosim.modes import modal_analysis
+from nanosim.piezo import PiezoConfig, loop_hysteresis_percent
+from nanosim.stage import Stage, StageConfig, run_open_loop_batch
+
+PAPER_SIGMA_OPEN_NM = 11.4          # paper Sec. 5, Fig. 16
+
+
+@pytest.fixture(scope="module")
+def ideal():
+    return Stage(config=StageConfig.ideal())
+
+
+@pytest.fixture(scope="module")
+def twin(ideal):
+    return linearize(ideal)
+
+
+def test_twin_dc_gain_and_modes_equal_modal_analysis(ideal, twin):
+    res = modal_analysis(ideal.model)
+    assert_allclose(twin.dc_gain_um_per_V, res.static_gain_um_per_V, rtol=1e-6, atol=1e-9)
+    wn = np.sort(np.abs(np.linalg.eigvals(twin.sys_V.A))) / (2 * np.pi)
+    assert_allclose(wn[::2], [m.freq_hz for m in res.below(1000.0)], rtol=1e-3)
+
+
+def test_twin_step_response_matches_ideal_stage(ideal, twin):
+    n = 800
+    for act in range(3):
+        ideal.reset()
+        u = np.zeros((n, 3))
+        u[:, act] = 0.05
+        y0 = ideal.table_um.copy()
+        y = ideal.run(u).sensor_um - y0
+        t = np.arange(n + 1) * twin.dt_s
+        ylin = ct.forced_response(twin.sysd_V, T=t, U=np.vstack([u, u[-1:]]).T).outputs.T[1:]
+        err = np.abs(y - ylin * C.SENSOR_UM_PER_V).max()
+        assert err < 0.02 * np.abs(y).max(), (act, err)
+
+
+def test_twin_frequency_response_matches_ideal_stage(twin):
+    """Periodic MLS excitation, second period: the FFT ratio is the stage's exact FRF."""
+    mls = 0.02 * (2.0 * max_len_seq(12)[0] - 1.0)   # 4095 samples
+    period = len(mls)
+    u = np.zeros((3, 2 * period, 3))
+    for act in range(3):
+        u[act, :, act] = np.tile(mls, 2)
+    traces = run_open_loop_batch(u, seeds=[0, 1, 2], config=StageConfig.ideal())
+    f = np.fft.rfftfreq(period, d=1 / C.CONTROL_RATE_HZ)
+    band = (f > 1.0) & (f < 1000.0)
+    z = np.exp(2j * np.pi * f[band] / C.CONTROL_RATE_HZ)
+    for act, tr in enumerate(traces):
+        y = tr.sensor_V[period:]
+        U = np.fft.rfft(u[act, period:, act])[band]
+        H_stage = np.fft.rfft(y, axis=0)[band] / U[:, None]
+        # trace row k is the reading after command k: one sample advance vs the twin
+        H_twin = np.array([twin.sysd_V(zz)[:, act] for zz in z]) * z[:, None]
+        peak = np.abs(H_twin).max()
+        assert np.abs(H_stage - H_twin).max() < 0.02 * peak
+
+
+def test_hysteresis_loop_on_actuator_a():
+    """Paper Fig. 14: 0 -> 1.65 -> 0 V on A moves about (-10, +, +) um with 15 % output hysteresis."""
+    st = Stage(seed=0, config=StageConfig(electronics=ElectronicsConfig.ideal(saturation=True)))
+    n = 4000
+    up = np.linspace(0, 1.65, n // 2)
+    v = np.concatenate([up, up[::-1]])
+    u = np.zeros((n, 3))
+    u[:, 0] = v
+    tr = st.run(u)
+    d = tr.table_um - tr.table_um[0]
+    travel = d[n // 2 - 1]
+    assert travel[0] < -8.0 and travel[1] > 0 and travel[2] > 0
+    assert_allclose(travel[0], -10.0, rtol=0.2)                          # paper: -10 um
+    out_pct, in_pct = loop_hysteresis_percent(v, -d[:, 0])             # X moves negative
+    assert 12.0 <= out_pct <= 18.0, out_pct
+    assert 11.0 <= in_pct <= 17.0, in_pct
+
+
+def test_creep_after_step_and_all_actuators_creep_mostly_in_z():
+    """A smooth 2.5 V move, then a 10 s hold: drift continues the move; all three together drift in Z."""
+    cfg = StageConfig(electronics=ElectronicsConfig.ideal(), piezo=PiezoConfig())
+    n_ramp, n_hold = 200, 40000                                          # 50 ms ramp, 10 s hold
+    ramp = 2.5 * 0.5 * (1 - np.cos(np.pi * np.arange(n_ramp) / n_ramp))
+    prof = np.concatenate([ramp, np.full(n_hold, 2.5)])
+    cmd = np.zeros((2, len(prof), 3))
+    cmd[0, :, 0] = prof                                                  # actuator A only
+    cmd[1] = prof[:, None]                                               # all three
+    tr_a, tr_all = run_open_loop_batch(cmd, seeds=[0, 0], config=cfg)
+    after = slice(n_ramp + 200, n_ramp + 600)                            # 50-150 ms after the move
+    end = slice(-400, None)                                              # last 0.1 s
+    for tr in (tr_a, tr_all):
+        move = tr.table_um[after].mean(0) - tr.table_um[0]
+        drift = tr.table_um[end].mean(0) - tr.table_um[after].mean(0)
+        # the fast 35 ms creep stage is done by then; the 1 s and 10 s stages drift on
+        assert 0.005 < np.linalg.norm(drift) / np.linalg.norm(move) < 0.1
+        assert np.all(np.sign(drift) == np.sign(move))                   # creep continues the move
+    drift_all = tr_all.table_um[end].mean(0) - tr_all.table_um[after].mean(0)
+    assert abs(drift_all[2]) > 5 * max(abs(drift_all[0]), abs(drift_all[1]))
+
+
+def test_open_loop_noise_at_rest_matches_paper():
+    tr = Stage(seed=11).run(np.zeros((10000, 3)))
+    sigma_nm = tr.sensor_um[2000:].std(axis=0) * 1e3
+    assert_allclose(sigma_nm[:2], PAPER_SIGMA_OPEN_NM, rtol=0.2)
+
+
+def test_adc_ramp_shows_1p5nm_steps():
+    cfg = StageConfig(electronics=ElectronicsConfig.ideal(adc_quantization=True), piezo=PiezoConfig.linear())
+    st = Stage(config=cfg)
+    u = np.zeros((4000, 3))
+    u[:, 2] = np.linspace(0, 0.003, 4000)                                # ~30 nm slow ramp
+    y = st.run(u).sensor_um[:, 0] * 1e3
+    steps = np.diff(np.unique(np.round(y, 6)))
+    assert_allclose(steps, C.ADC_LSB_NM, rtol=1e-6)
+    assert_allclose(C.ADC_LSB_NM, 1.526, rtol=1e-3)
+
+
+def test_saturation_clips_and_flags():
+    st = Stage(config=StageConfig(electronics=ElectronicsConfig.ideal(saturation=True), piezo=PiezoConfig.linear()))
+    tr = st.run(np.array([[9.0, -3.0, 1.0]] * 4))
+    assert_allclose(tr.piezo_V[-1], [150.0, -20.0, 20.0])
+    assert tr.saturated[-1].tolist() == [True, True, False]
+
+
+def test_same_seed_bit_identical_and_different_seed_differs():
+    u = np.random.default_rng(5).uniform(0, 1, size=(300, 3))
+    a = Stage(seed=3).run(u)
+    b = Stage(seed=3).run(u)
+    c = Stage(seed=4).run(u)
+    for k, v in a.as_arrays().items():
+        assert np.array_equal(v, getattr(b, k)), k
+    assert not np.array_equal(a.sensor_V, c.sensor_V)
+
+
+def test_step_and_run_agree_exactly():
+    u = np.random.default_rng(1).uniform(0, 0.5, size=(60, 3))
+    s1, s2 = Stage(seed=2), Stage(seed=2)
+    ys = np.array([s1.step(ui) for ui in u])
+    assert np.array_equal(ys, s2.run(u).sensor_V)
+
+
+@pytest.mark.parametrize("bad, match", [(np.zeros(2), "shape"), (np.array([0.0, np.nan, 0.0]), "NaN"),
+                                        (np.array([np.inf, 0, 0]), "NaN/inf")])
+def test_bad_commands_raise_before_simulating(bad, match):
+    st = Stage(config=StageConfig.ideal())
+    with pytest.raises(ValueError, match="u_V") as err:
+        st.step(bad)
+    assert match.split("/")[0] in str(err.value)
+    assert st.time_s == 0.0
+    with pytest.raises(ValueError, match="u_V"):
+        st.run(np.zeros((5, 2)))
