@@ -1,0 +1,156 @@
+"""Live closed/open-loop simulation used by the viewer's physics thread.
+
+Uses :class:`nanosim.stage.Stage` when importable; otherwise a raw MuJoCo
+fallback (tendon force = 3.6 N per controller volt, 20 substeps per 4 kHz
+control period) so the viewer still runs.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from .. import constants as C
+from ..mechanics import home_data
+from ..model import load_model
+from ..modes import modal_analysis, probe_readings_um, volts_to_force_N
+
+try:  # the stage simulator (electronics, piezo hysteresis, noise)
+    from ..stage import Stage, StageConfig
+except Exception:  # noqa: BLE001 - any import problem -> fallback
+    Stage = StageConfig = None
+
+
+def load_controller(path):
+    """DiscreteController from an .npz file. FileNotFoundError with one line if missing."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"controller: no such file {str(p)!r} (expected a .npz from the synthesis step)")
+    try:
+        from ..controller import DiscreteController
+    except Exception as exc:  # noqa: BLE001
+        raise ValueError(f"controller: nanosim.controller is not available ({exc})") from None
+    try:
+        return DiscreteController.from_npz(p)
+    except (OSError, KeyError, ValueError) as exc:
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f"controller: cannot read {str(p)!r}: {msg}") from None
+
+
+class RawStage:
+    """Minimal Stage stand-in on raw MuJoCo (linear piezo, optional noise/saturation)."""
+
+    def __init__(self, model: mujoco.MjModel, realistic: bool = False, seed: int = 0):
+        self.model = model
+        self.realistic = realistic
+        self.rng = np.random.default_rng(seed)
+        self.substeps = max(1, int(round(C.CONTROL_PERIOD_S / model.opt.timestep)))
+        self.reset()
+
+    def reset(self):
+        self.data = home_data(self.model)
+        self.time_s = 0.0
+        self.last_piezo_V = np.zeros(3)
+        self.last_saturated = np.zeros(3, bool)
+        self.table_um = np.zeros(3)
+        self._adr = self.model.sensor_adr[self.model.sensor("table_pos").id]
+        self._table0 = self.data.sensordata[self._adr:self._adr + 3].copy()
+
+    def step(self, u_V) -> np.ndarray:
+        u = np.asarray(u_V, float)
+        if self.realistic:
+            lo, hi = C.COMMAND_RANGE_V
+            self.last_saturated = (u < lo) | (u > hi)
+            u = np.clip(u, lo, hi)
+        self.last_piezo_V = u * C.AMPLIFIER_GAIN
+        self.data.ctrl[:3] = u * volts_to_force_N()
+        mujoco.mj_step(self.model, self.data, nstep=self.substeps)
+        self.time_s += self.substeps * self.model.opt.timestep
+        self.table_um = (self.data.sensordata[self._adr:self._adr + 3] - self._table0) * 1e6
+        y_um = probe_readings_um(self.model, self.data)
+        if self.realistic:
+            y_um = y_um + self.rng.normal(0, C.SENSOR_NOISE_NM_RMS_1KHZ * 1e-3, 3)
+        return y_um / C.SENSOR_UM_PER_V
+
+
+class LiveSim:
+    """Stage + reference + (optional) H-infinity controller, one 4 kHz step at a time.
+
+    Not thread-safe by itself: the viewer calls it from the physics thread only
+    and reads the published snapshot (``snapshot()``) under its lock.
+    """
+
+    def __init__(self, model: mujoco.MjModel | None = None, mjcf=None, controller=None,
+                 realistic: bool = False, seed: int = 0):
+        self.mjcf = mjcf
+        self.model = model if model is not None else load_model(mjcf)
+        self.controller = controller
+        self.controller_on = controller is not None
+        self.seed = seed
+        self.G0 = modal_analysis(self.model).static_gain_um_per_V
+        self.G0inv = np.linalg.inv(self.G0)
+        self.backend = "stage" if Stage is not None else "raw-mujoco"
+        self.realistic = realistic
+        self._make_stage()
+
+    def _make_stage(self):
+        if Stage is not None:
+            cfg = StageConfig() if self.realistic else StageConfig.ideal()
+            try:
+                self.stage = Stage(seed=self.seed, config=cfg, model=self.model)
+            except TypeError:
+                self.stage = Stage(seed=self.seed, config=cfg, mjcf=self.mjcf)
+        else:
+            self.stage = RawStage(self.model, realistic=self.realistic, seed=self.seed)
+        # probe reading at home (e.g. the Z probe's zero offset): the viewer's
+        # references and readouts are displacements from home
+        self.y_home_V = self._home_reading_V()
+        self.y_V = self.y_home_V.copy()
+        self.u_V = np.zeros(3)
+        self.ref_um = np.zeros(3)
+        if self.controller is not None:
+            self.controller.reset()
+
+    def _home_reading_V(self) -> np.ndarray:
+        d = home_data(self.model)
+        return probe_readings_um(self.model, d) / C.SENSOR_UM_PER_V
+
+    def set_realistic(self, on: bool):
+        if bool(on) != self.realistic:
+            self.realistic = bool(on)
+            self._make_stage()
+
+    def reset(self):
+        self._make_stage()
+
+    @property
+    def time_s(self) -> float:
+        return float(self.stage.time_s)
+
+    @property
+    def dt_s(self) -> float:
+        return C.CONTROL_PERIOD_S
+
+    def step(self, ref_um) -> np.ndarray:
+        """One control period toward ``ref_um`` (3,, from home); returns measured um from home (3,)."""
+        self.ref_um = np.asarray(ref_um, float)
+        if self.controller_on and self.controller is not None:
+            e = self.ref_um / C.SENSOR_UM_PER_V + self.y_home_V - self.y_V
+            self.u_V = np.asarray(self.controller.step(e), float)
+        else:
+            self.u_V = self.G0inv @ self.ref_um
+        self.y_V = np.asarray(self.stage.step(self.u_V), float)
+        return (self.y_V - self.y_home_V) * C.SENSOR_UM_PER_V
+
+    @property
+    def qpos(self) -> np.ndarray:
+        return self.stage.data.qpos.copy()
+
+    def snapshot(self) -> dict:
+        st = self.stage
+        return {"t": self.time_s, "qpos": self.qpos, "ref_um": self.ref_um.copy(),
+                "meas_um": (self.y_V - self.y_home_V) * C.SENSOR_UM_PER_V, "u_V": self.u_V.copy(),
+                "piezo_V": np.asarray(st.last_piezo_V, float).copy(),
+                "saturated": np.asarray(st.last_saturated, bool).copy(),
+                "table_um": np.asarray(st.table_um, float).copy()}
