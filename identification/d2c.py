@@ -24,10 +24,10 @@ import numpy as np
 
 from ._checks import as_matrix, frozen_array, positive_float
 
-__all__ = ["ContinuousModel", "d2c_tustin", "d2c"]
+__all__ = ["ContinuousModel", "d2c_tustin", "d2c_zoh", "d2c"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ContinuousModel:
     """Continuous-time state-space matrices ``dx/dt = A x + B u``, ``y = C x + D u``.
 
@@ -104,8 +104,65 @@ def d2c_tustin(A, B, C, D, dt: float, *, prewarp_hz: float | None = None) -> Con
     return ContinuousModel(A=frozen_array(Ac), B=frozen_array(Bc), C=frozen_array(Cc), D=frozen_array(Dc))
 
 
-def d2c(sys, *, prewarp_hz: float | None = None):
-    """Convert a discrete model to a continuous ``control.StateSpace`` (Tustin).
+def d2c_zoh(A, B, C, D, dt: float) -> ContinuousModel:
+    """Inverse zero-order-hold discretisation (matrix logarithm).
+
+    Exact inverse of ``control.c2d(sys, dt, 'zoh')``: with
+    ``expm([[Ac, Bc], [0, 0]] dt) = [[A, B], [0, I]]``, returns
+    ``Ac, Bc`` from the principal matrix logarithm, and ``C, D`` unchanged.
+    Poles map exactly, ``s = log(z) / dt``.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    B : array_like, shape (n, n_inputs)
+    C : array_like, shape (n_outputs, n)
+    D : array_like, shape (n_outputs, n_inputs)
+        Discrete-time matrices.
+    dt : float
+        Sample time in s.
+
+    Returns
+    -------
+    ContinuousModel
+
+    Raises
+    ------
+    ValueError
+        If ``A`` has an eigenvalue on the closed negative real axis (no real
+        logarithm).
+    """
+    import scipy.linalg as la
+
+    A = as_matrix("A", A)
+    n = A.shape[0]
+    if A.shape != (n, n):
+        raise ValueError(f"A: expected a square matrix, got shape {A.shape}")
+    B = as_matrix("B", B, rows=n)
+    C = as_matrix("C", C, cols=n)
+    D = as_matrix("D", D, rows=C.shape[0], cols=B.shape[1])
+    dt = positive_float("dt", dt)
+    lam = np.linalg.eigvals(A)
+    bad = (np.abs(lam.imag) <= 1e-12 * np.maximum(np.abs(lam), 1e-300)) & (lam.real <= 0)
+    if bad.any():
+        raise ValueError(
+            f"A: expected no eigenvalue on the negative real axis or at 0 (no real logarithm), "
+            f"got {lam[bad].real.tolist()}"
+        )
+    m = B.shape[1]
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = A
+    M[:n, n:] = B
+    M[n:, n:] = np.eye(m)
+    Lm = la.logm(M)
+    if np.iscomplexobj(Lm):
+        Lm = Lm.real
+    Lm = Lm / dt
+    return ContinuousModel(A=frozen_array(Lm[:n, :n]), B=frozen_array(Lm[:n, n:]), C=frozen_array(C), D=frozen_array(D))
+
+
+def d2c(sys, *, method: str = "tustin", prewarp_hz: float | None = None):
+    """Convert a discrete model to a continuous ``control.StateSpace``.
 
     Parameters
     ----------
@@ -113,8 +170,11 @@ def d2c(sys, *, prewarp_hz: float | None = None):
         Discrete-time model (``dt_s`` attribute, or ``dt > 0`` for
         python-control).  Signal names of a ``StateSpace`` are kept; the
         labels of an ``IdentifiedModel`` become input/output names.
+    method : {"tustin", "zoh"}, default "tustin"
+        ``"tustin"``: :func:`d2c_tustin` (the paper's choice);
+        ``"zoh"``: :func:`d2c_zoh` (no frequency warping).
     prewarp_hz : float, optional
-        Prewarp frequency in Hz, see :func:`d2c_tustin`.
+        Prewarp frequency in Hz, see :func:`d2c_tustin` (Tustin only).
 
     Returns
     -------
@@ -123,13 +183,23 @@ def d2c(sys, *, prewarp_hz: float | None = None):
     """
     import control
 
+    if method not in ("tustin", "zoh"):
+        raise ValueError(f"method: expected 'tustin' or 'zoh', got {method!r}")
+    if method == "zoh" and prewarp_hz is not None:
+        raise ValueError(f"prewarp_hz: expected None with method='zoh', got {prewarp_hz!r}")
+
+    def convert(A, B, C, D, dt):
+        if method == "zoh":
+            return d2c_zoh(A, B, C, D, dt)
+        return d2c_tustin(A, B, C, D, dt, prewarp_hz=prewarp_hz)
+
     if isinstance(sys, control.StateSpace):
         if sys.dt is None or sys.dt is True or not sys.dt or sys.dt <= 0:
             raise ValueError(f"sys: expected a discrete StateSpace with numeric dt > 0, got dt={sys.dt!r}")
-        cm = d2c_tustin(sys.A, sys.B, sys.C, sys.D, float(sys.dt), prewarp_hz=prewarp_hz)
+        cm = convert(sys.A, sys.B, sys.C, sys.D, float(sys.dt))
         return control.ss(cm.A, cm.B, cm.C, cm.D, inputs=sys.input_labels, outputs=sys.output_labels)
     if hasattr(sys, "dt_s") and hasattr(sys, "A"):
-        cm = d2c_tustin(sys.A, sys.B, sys.C, sys.D, sys.dt_s, prewarp_hz=prewarp_hz)
+        cm = convert(sys.A, sys.B, sys.C, sys.D, sys.dt_s)
         kw = {}
         if getattr(sys, "input_names", None):
             kw["inputs"] = list(sys.input_names)

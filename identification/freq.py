@@ -18,7 +18,7 @@ from ._checks import as_matrix, as_signal, frozen_array, not_degenerate, positiv
 __all__ = ["H1Estimate", "h1_estimate", "frequency_response"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class H1Estimate:
     """Non-parametric frequency-response estimate.
 

@@ -111,7 +111,7 @@ def _seed_sequence(seed) -> np.random.SeedSequence:
         raise ValueError(f"seed: expected a non-negative int, SeedSequence or Generator, got {seed!r}") from None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Excitation:
     """Identification input signal with its segment layout.
 
@@ -261,7 +261,7 @@ def paper_excitation(
     )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Spectrum:
     """Welch power spectral density.
 

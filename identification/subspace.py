@@ -45,6 +45,7 @@ Systems: Theory, Implementation, Applications*, Kluwer, 1996.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,13 +68,14 @@ __all__ = [
     "select_order",
     "simulate",
     "estimate_x0",
+    "predict",
     "default_horizon",
 ]
 
 _EPS = np.finfo(float).eps
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class IdentifiedModel:
     """Discrete-time innovation-form state-space model.
 
@@ -139,6 +141,17 @@ class IdentifiedModel:
     def poles(self) -> np.ndarray:
         """Discrete-time poles (eigenvalues of ``A``), shape (n,)."""
         return np.linalg.eigvals(self.A)
+
+    def to_statespace(self):
+        """Discrete ``control.StateSpace`` ``(A, B, C, D, dt_s)`` with the channel labels (K dropped)."""
+        import control
+
+        kw = {}
+        if self.input_names:
+            kw["inputs"] = list(self.input_names)
+        if self.output_names:
+            kw["outputs"] = list(self.output_names)
+        return control.ss(self.A, self.B, self.C, self.D, self.dt_s, **kw)
 
     def dc_gain(self) -> np.ndarray:
         """Static gain ``C (I - A)^-1 B + D``, shape (n_outputs, n_inputs)."""
@@ -247,7 +260,8 @@ def subspace_id(
         must vary (a constant input cannot identify dynamics).
     order : int, optional
         Number of states.  Default: chosen by :func:`select_order` among
-        ``1..max_order``.
+        ``1..max_order`` (a ``UserWarning`` is issued if it reaches
+        ``max_order``).
     horizon : int, optional
         Block rows ``i`` of the past and future Hankel matrices (samples).
         Default :func:`default_horizon`, reduced if the record is short.
@@ -294,31 +308,34 @@ def subspace_id(
     max_order = positive_int("max_order", max_order)
     if order is not None:
         order = positive_int("order", order)
+    if not isinstance(feedthrough, (bool, np.bool_)):
+        raise ValueError(f"feedthrough: expected True or False, got {feedthrough!r}")
     needed = order if order is not None else max_order
-
-    def rows_ok(i):
-        return (n_samples - 2 * i + 1) >= 2 * i * (m + l)
-
-    min_i = int(np.ceil(needed / l)) + 1
+    what = "order" if order is not None else "max_order"
+    # (i - 1) * l >= n for the shift invariance; with automatic order selection
+    # a few singular values beyond max_order are needed for the noise floor.
+    min_i = -(-needed // l) + 1
     if order is None:
-        # the noise floor needs singular values beyond max_order
-        min_i = max(min_i, int(np.ceil((needed + 2) / l)))
+        min_i = max(min_i, -(-(max_order + 3) // l))
+
+    def min_samples(i):  # j = N - 2 i + 1 columns >= 2 i (m + l) rows
+        return 2 * i * (m + l + 1) - 1
+
     if horizon is None:
         i = default_horizon(l, needed)
-        while i > min_i and not rows_ok(i):
+        while i > min_i and n_samples < min_samples(i):
             i -= 1
+        i = max(i, min_i)
     else:
         i = positive_int("horizon", horizon, minimum=2)
-        if (i - 1) * l < needed:
+        if i < min_i:
             raise ValueError(
-                f"horizon: expected (horizon - 1) * n_outputs >= {'order' if order else 'max_order'}="
-                f"{needed}, i.e. horizon >= {min_i}, got {i}"
+                f"horizon: expected >= {min_i} for {what}={needed} with {l} output(s), got {i}"
             )
-    if not rows_ok(i) or i < min_i:
-        need = 2 * i * (m + l) + 2 * max(i, min_i) - 1
+    if n_samples < min_samples(i):
         raise ValueError(
-            f"y, u: expected at least {need} samples for horizon={max(i, min_i)} with "
-            f"{m} input(s) and {l} output(s), got {n_samples}"
+            f"y, u: expected at least {min_samples(i)} samples for horizon={i} ({what}={needed}, "
+            f"{m} input(s), {l} output(s)), got {n_samples}"
         )
     in_names = _names("input_names", input_names, m)
     out_names = _names("output_names", output_names, l)
@@ -333,19 +350,33 @@ def subspace_id(
     hu = _hankel_columns(un, 2 * i)  # (j, 2 i m)
     hy = _hankel_columns(yn, 2 * i)  # (j, 2 i l)
     j = hu.shape[0]
-    r1, r2, r3 = i * m, i * (m + l), i * l
+    r1, r2 = i * m, i * (m + l)
     wp = np.concatenate([hu[:, : i * m], hy[:, : i * l]], axis=1)  # past data, (j, r2)
     H = np.concatenate([hu[:, i * m :], wp, hy[:, i * l :]], axis=1)
     del hu, hy
     R = np.linalg.qr(H, mode="r")
     del H
     L = R.T / np.sqrt(j)
+    # persistency of excitation: the input rows [U_f; U_p] must have full rank
+    d_in = np.abs(np.concatenate([np.diag(L)[:r1], np.diag(L)[r1 : r1 + i * m]]))
+    if d_in.min() <= 1e-10 * d_in.max():
+        raise ValueError(
+            f"u: expected an input persistently exciting of order {2 * i} (e.g. PRBS), got a "
+            f"rank-deficient input Hankel matrix (a few sinusoids or a too slowly varying signal?)"
+        )
     L22 = L[r1 : r1 + r2, r1 : r1 + r2]
     L32 = L[r1 + r2 :, r1 : r1 + r2]
 
     Us, sv, Vt = np.linalg.svd(L32)
     if order is None:
         n = select_order(sv, max_order)
+        if n == max_order:
+            warnings.warn(
+                f"order: automatic selection reached max_order={max_order}; the system may need more "
+                f"states (increase max_order or pass order)",
+                UserWarning,
+                stacklevel=2,
+            )
     else:
         n = order
     if n >= sv.size:
@@ -452,10 +483,11 @@ def _obs_powers(A: np.ndarray, C: np.ndarray, n_samples: int) -> np.ndarray:
     return O
 
 
-def _forced_regressors(O: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Output response to each entry of B, zero initial state.
+def _fill_forced_regressors(O: np.ndarray, u: np.ndarray, out: np.ndarray) -> None:
+    """Output response to each entry of B, zero initial state, written into ``out``.
 
-    ``F[k, :, p, q] = sum_{t<k} C A^(k-1-t) e_p u_q(t)``, shape (N, l, n, m).
+    ``out[k, :, p * m + q] = sum_{t<k} C A^(k-1-t) e_p u_q(t)`` (row-major
+    ``vec(B)``), computed by FFT convolution; ``out`` has shape (N, l, n m).
     """
     N, l, n = O.shape
     m = u.shape[1]
@@ -463,17 +495,18 @@ def _forced_regressors(O: np.ndarray, u: np.ndarray) -> np.ndarray:
     g = np.zeros((N, l * n))
     g[1:] = O[:-1].reshape(N - 1, l * n)
     G = _fft.rfft(g, n=nfft, axis=0)
+    del g
     Uf = _fft.rfft(u, n=nfft, axis=0)
-    F = np.empty((N, l, n, m))
     for q in range(m):
-        F[:, :, :, q] = _fft.irfft(G * Uf[:, q : q + 1], n=nfft, axis=0)[:N].reshape(N, l, n)
-    return F
+        out[:, :, q::m] = _fft.irfft(G * Uf[:, q : q + 1], n=nfft, axis=0)[:N].reshape(N, l, n)
 
 
 def _lstsq_scaled(Phi: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Column-normalised least squares; ``Phi`` is overwritten."""
     norms = np.linalg.norm(Phi, axis=0)
     norms[norms == 0] = 1.0
-    theta = np.linalg.lstsq(Phi / norms, target, rcond=None)[0]
+    Phi /= norms
+    theta = _la.lstsq(Phi, target, lapack_driver="gelsy", overwrite_a=True, check_finite=False)[0]
     return theta / norms
 
 
@@ -481,16 +514,18 @@ def _fit_x0_B_D(A, C, u, y, feedthrough):
     N, l = y.shape
     n = A.shape[0]
     m = u.shape[1]
+    p = n + n * m + (l * m if feedthrough else 0)
+    Phi = np.empty((N, l, p))
     O = _obs_powers(A, C, N)
-    F = _forced_regressors(O, u)
-    cols = [O.reshape(N * l, n), F.reshape(N * l, n * m)]
+    Phi[:, :, :n] = O
+    _fill_forced_regressors(O, u, Phi[:, :, n : n + n * m])
+    del O
     if feedthrough:
-        Dreg = np.zeros((N, l, l, m))
+        Dreg = Phi[:, :, n + n * m :]
+        Dreg[...] = 0.0
         for r in range(l):
-            Dreg[:, r, r, :] = u
-        cols.append(Dreg.reshape(N * l, l * m))
-    Phi = np.concatenate(cols, axis=1)
-    theta = _lstsq_scaled(Phi, y.reshape(N * l))
+            Dreg[:, r, r * m : (r + 1) * m] = u
+    theta = _lstsq_scaled(Phi.reshape(N * l, p), y.reshape(N * l))
     x0 = theta[:n]
     B = theta[n : n + n * m].reshape(n, m)
     D = theta[n + n * m :].reshape(l, m) if feedthrough else np.zeros((l, m))
@@ -588,3 +623,54 @@ def estimate_x0(model, y, u) -> np.ndarray:
     N, l = ys.shape
     O = _obs_powers(A, C, N)
     return _lstsq_scaled(O.reshape(N * l, -1), resid.reshape(N * l))
+
+
+def predict(model, y, u, x0=None) -> np.ndarray:
+    """One-step-ahead prediction with the innovation-form Kalman predictor.
+
+    ``yhat(k) = C xhat(k) + D u(k)``,
+    ``xhat(k+1) = A xhat(k) + B u(k) + K (y(k) - yhat(k))``.
+
+    Parameters
+    ----------
+    model : IdentifiedModel
+        Model with a Kalman gain ``K``.
+    y : array_like, shape (n_samples, n_outputs) or (n_samples,)
+        Measured output.
+    u : array_like, shape (n_samples, n_inputs) or (n_samples,)
+        Input.
+    x0 : array_like, shape (n,), optional
+        Initial state estimate (default zeros).
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_samples, n_outputs)
+        Predicted output; ``y - yhat`` estimates the innovations ``e``.
+    """
+    A, B, C, D = _model_matrices(model)
+    try:
+        K = as_matrix("model.K", model.K, rows=A.shape[0], cols=C.shape[0])
+    except AttributeError:
+        raise ValueError("model: expected a Kalman gain attribute K, got none") from None
+    ys = as_signal("y", y)
+    us = as_signal("u", u)
+    same_length("y", ys, "u", us)
+    n, m = B.shape
+    l = C.shape[0]
+    if ys.shape[1] != l:
+        raise ValueError(f"y: expected {l} output channel(s), got {ys.shape[1]}")
+    if us.shape[1] != m:
+        raise ValueError(f"u: expected {m} input channel(s), got {us.shape[1]}")
+    x = np.zeros(n) if x0 is None else as_signal("x0", x0, max_ndim=1)[:, 0]
+    if x.shape[0] != n:
+        raise ValueError(f"x0: expected shape ({n},), got ({x.shape[0]},)")
+    N = ys.shape[0]
+    # xhat(k+1) = (A - K C) xhat + (B - K D) u + K y
+    Ak = A - K @ C
+    drive = us @ (B - K @ D).T + ys @ K.T
+    X = np.empty((N, n))
+    At = np.ascontiguousarray(Ak.T)
+    for k in range(N):
+        X[k] = x
+        x = x @ At + drive[k]
+    return X @ C.T + us @ D.T

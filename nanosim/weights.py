@@ -158,7 +158,7 @@ class WeightSpec:
                 raise ValueError(
                     f"{nm} (weight on {role}) has a pole on the imaginary axis at s = {p:.4g} rad/s ({what}). "
                     f"The H-infinity synthesis needs weights with all poles strictly in the left half plane: "
-                    f"the weight's state is then not detectable from the measured error and the Doyle-Glover "
+                    f"such a weight state is not detectable from the measured error, so the Doyle-Glover "
                     f"Riccati solution does not exist. Move the pole slightly left, e.g. 1/s -> 1/(s + 1e-4*wb) "
                     f"as in the paper's Wp = (0.6667 s + 314.2)/(s + 0.03142).")
             if p.real > 0:
@@ -203,12 +203,15 @@ class Weights:
 
     Parameters
     ----------
-    Wp : WeightSpec, number or mapping
+    Wp : WeightSpec, number, mapping or None
         Weight on the sensitivity S (error / reference) [dimensionless].
-    Wt : WeightSpec, number or mapping
+    Wt : WeightSpec, number, mapping or None
         Weight on the complementary sensitivity T (output / reference) [dimensionless].
-    Wu : WeightSpec, number or mapping
+    Wu : WeightSpec, number, mapping or None
         Weight on KS (controller volts / sensor volts) [sensor V / controller V].
+
+    ``None`` leaves that closed-loop map unweighted (e.g. an S/KS design without
+    Wt, as in Skogestad & Postlethwaite Example 2.11); at least one is required.
     """
 
     Wp: WeightSpec = _paper("Wp", (0.6667, 314.2), (1.0, 0.03142))
@@ -217,15 +220,19 @@ class Weights:
 
     def __post_init__(self):
         for nm in WEIGHT_NAMES:
-            object.__setattr__(self, nm, WeightSpec.from_value(getattr(self, nm), nm))
+            val = getattr(self, nm)
+            object.__setattr__(self, nm, None if val is None else WeightSpec.from_value(val, nm))
+        if all(getattr(self, nm) is None for nm in WEIGHT_NAMES):
+            raise ValueError("weights: at least one of Wp, Wt, Wu must be given")
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "Weights":
         """Build from ``{"Wp": {...}, "Wt": {...}, "Wu": 0.15}``.
 
-        Each entry is a number or a table ``{num, den, power}``. A mapping with a
+        Each entry is a number, a table ``{num, den, power}``, or ``null`` /
+        ``false`` / ``"none"`` for an unweighted map (TOML has no null). A mapping with a
         ``"hinf"`` sub-table (``paper_targets.json``) is accepted; other keys
-        (``gamma``, ...) are ignored. All three weights are required.
+        (``gamma``, ...) are ignored. All three keys are required.
         """
         if not isinstance(data, Mapping):
             raise ValueError(f"weights: expected a mapping, got {type(data).__name__}")
@@ -235,8 +242,12 @@ class Weights:
         if missing:
             near = [k for k in data if isinstance(k, str) and k.lower() in {"wp", "wt", "wu"} and k not in WEIGHT_NAMES]
             hint = f" (keys are case sensitive; found {near})" if near else ""
-            raise ValueError(f"weights: missing {missing}; expected keys Wp, Wt, Wu{hint}")
-        return cls(**{k: WeightSpec.from_value(data[k], k) for k in WEIGHT_NAMES})
+            raise ValueError(f"weights: missing {missing}; expected keys Wp, Wt, Wu (null/false/'none' to omit "
+                             f"one){hint}")
+
+        def absent(v):
+            return v is None or v is False or (isinstance(v, str) and v.strip().lower() == "none")
+        return cls(**{k: None if absent(data[k]) else WeightSpec.from_value(data[k], k) for k in WEIGHT_NAMES})
 
     @classmethod
     def from_file(cls, path: str | os.PathLike) -> "Weights":
@@ -270,23 +281,28 @@ class Weights:
         raise ValueError(f"weights: expected None, Weights, a mapping or a .json/.toml path, got {type(value).__name__}")
 
     def to_dict(self) -> dict:
-        """``{"Wp": {...}, "Wt": {...}, "Wu": {...}}`` with num/den/power lists."""
-        return {k: getattr(self, k).to_dict() for k in WEIGHT_NAMES}
+        """``{"Wp": {...}, "Wt": {...}, "Wu": {...}}`` with num/den/power lists
+        (``None`` for an omitted weight)."""
+        return {k: None if getattr(self, k) is None else getattr(self, k).to_dict() for k in WEIGHT_NAMES}
 
     def check(self) -> None:
         """Raise ``ValueError`` naming the first weight unusable for synthesis."""
         for k in WEIGHT_NAMES:
-            getattr(self, k).check()
+            if getattr(self, k) is not None:
+                getattr(self, k).check()
 
     def statespace(self, ny: int, nu: int):
         """Diagonal state-space weights ``(Wp I_ny, Wu I_nu, Wt I_ny)`` in the
-        argument order of ``control.augw(G, w1, w2, w3)``."""
-        return self.Wp.ss_diag(ny), self.Wu.ss_diag(nu), self.Wt.ss_diag(ny)
+        argument order of ``control.augw(G, w1, w2, w3)``; ``None`` for omitted ones."""
+        return (None if self.Wp is None else self.Wp.ss_diag(ny),
+                None if self.Wu is None else self.Wu.ss_diag(nu),
+                None if self.Wt is None else self.Wt.ss_diag(ny))
 
     def order_for(self, ny: int, nu: int) -> int:
         """Total weight states for an ``ny x nu`` plant (the controller order is
         plant order + this). Paper: 3*1 + 3*0 + 3*2 = 9."""
-        return ny * (self.Wp.order + self.Wt.order) + nu * self.Wu.order
+        o = {k: 0 if getattr(self, k) is None else getattr(self, k).order for k in WEIGHT_NAMES}
+        return ny * (o["Wp"] + o["Wt"]) + nu * o["Wu"]
 
 
 PAPER_WEIGHTS = Weights()

@@ -1,0 +1,239 @@
+"""Real-time discrete H-infinity controller (runs at the 4 kHz control rate).
+
+Loads the discrete controller written by :func:`nanosim.design.run_design`
+(``controller.npz``: ``Akd, Bkd, Ckd, Dkd, dt``) and implements::
+
+    x[k+1] = Akd x[k] + Bkd e[k]
+    u[k]   = Ckd x[k] + Dkd e[k]
+
+Units: ``e`` = tracking error ``r - y`` in **sensor volts** (X, Y, Z; 5 um/V),
+``u`` = command in **controller volts** for actuators A, B, C (before the x20
+piezo amplifier; the paper's command range is -1 ... 7.5 V, see
+``nanosim.constants.COMMAND_RANGE_V``). Saturation is *not* applied here: the
+plant/simulator owns actuator limits. Sign convention: negative feedback,
+``e = r - y``, ``u = +K e`` (see :mod:`nanosim.design`).
+
+The controller is pure numpy: ``[x[k+1]; u[k]] = M @ [x[k]; e[k]]`` with the
+stacked matrix ``M = [[Akd, Bkd], [Ckd, Dkd]]`` precomputed, one matrix-vector
+product per step.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from nanosim import _io
+
+__all__ = ["ControllerConfig", "DiscreteController"]
+
+_REQUIRED = ("Akd", "Bkd", "Ckd", "Dkd", "dt")
+
+
+def _readonly(a) -> np.ndarray:
+    a = np.array(a, dtype=float, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class ControllerConfig:
+    """Immutable discrete controller matrices (read-only arrays).
+
+    Attributes
+    ----------
+    Akd : ndarray, shape (n, n)
+    Bkd : ndarray, shape (n, n_in)
+        ``n_in`` = number of error channels (3: X, Y, Z) [sensor V].
+    Ckd : ndarray, shape (n_out, n)
+        ``n_out`` = number of commands (3: A, B, C) [controller V].
+    Dkd : ndarray, shape (n_out, n_in)
+    dt : float
+        Sample time [s] (1/4000 for the paper's controller).
+    """
+
+    Akd: np.ndarray
+    Bkd: np.ndarray
+    Ckd: np.ndarray
+    Dkd: np.ndarray
+    dt: float
+
+    def __post_init__(self):
+        mats = {}
+        for k in ("Akd", "Bkd", "Ckd", "Dkd"):
+            try:
+                a = np.asarray(getattr(self, k), dtype=float)
+            except (TypeError, ValueError):
+                raise ValueError(f"{k}: expected a numeric matrix") from None
+            if a.ndim != 2:
+                raise ValueError(f"{k}: expected a 2-D matrix, got shape {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"{k}: contains NaN/inf")
+            mats[k] = a
+        A, B, C, D = mats["Akd"], mats["Bkd"], mats["Ckd"], mats["Dkd"]
+        n = A.shape[0]
+        if A.shape != (n, n):
+            raise ValueError(f"Akd: expected a square matrix, got shape {A.shape}")
+        if B.shape[0] != n:
+            raise ValueError(f"Bkd: expected {n} rows (states), got shape {B.shape}")
+        if C.shape[1] != n:
+            raise ValueError(f"Ckd: expected {n} columns (states), got shape {C.shape}")
+        if D.shape != (C.shape[0], B.shape[1]):
+            raise ValueError(f"Dkd: expected shape {(C.shape[0], B.shape[1])}, got {D.shape}")
+        dt = np.asarray(self.dt, dtype=float)
+        if dt.size != 1 or not np.isfinite(dt) or float(dt) <= 0:
+            raise ValueError(f"dt: expected one positive sample time in s, got {self.dt!r}")
+        for k, a in mats.items():
+            object.__setattr__(self, k, _readonly(a))
+        object.__setattr__(self, "dt", float(dt.ravel()[0]))
+
+    @property
+    def n_states(self) -> int:
+        return self.Akd.shape[0]
+
+    @property
+    def n_in(self) -> int:
+        return self.Bkd.shape[1]
+
+    @property
+    def n_out(self) -> int:
+        return self.Ckd.shape[0]
+
+    @property
+    def spectral_radius(self) -> float:
+        """max |eig(Akd)| (< 1 for a stable controller)."""
+        return float(np.max(np.abs(np.linalg.eigvals(self.Akd)))) if self.n_states else 0.0
+
+
+class DiscreteController:
+    """Discrete state-space controller with internal state.
+
+    Parameters
+    ----------
+    config : ControllerConfig
+        Immutable matrices; the instance only holds the state ``x``.
+
+    Examples
+    --------
+    >>> ctrl = DiscreteController.from_npz("out/controller.npz")      # doctest: +SKIP
+    >>> u = ctrl.step(r - y)     # sensor V in, controller V out      # doctest: +SKIP
+    """
+
+    __slots__ = ("config", "_M", "_xe", "_n", "_nin", "_out")
+
+    def __init__(self, config: ControllerConfig):
+        if not isinstance(config, ControllerConfig):
+            raise ValueError(f"config: expected a ControllerConfig, got {type(config).__name__}")
+        self.config = config
+        n, nin = config.n_states, config.n_in
+        self._n, self._nin = n, nin
+        self._M = np.ascontiguousarray(np.block([[config.Akd, config.Bkd], [config.Ckd, config.Dkd]]))
+        self._xe = np.zeros(n + nin)          # [x; e] work vector
+        self._out = np.empty(n + config.n_out)
+
+    # --- construction ------------------------------------------------------------
+    @classmethod
+    def from_matrices(cls, Akd, Bkd, Ckd, Dkd, dt: float) -> "DiscreteController":
+        """Build from the four discrete matrices and the sample time [s]."""
+        return cls(ControllerConfig(Akd, Bkd, Ckd, Dkd, dt))
+
+    @classmethod
+    def from_npz(cls, path: str | os.PathLike) -> "DiscreteController":
+        """Load ``controller.npz`` (keys ``Akd, Bkd, Ckd, Dkd, dt``; no pickle).
+
+        Raises
+        ------
+        FileNotFoundError
+            The file does not exist.
+        ValueError
+            Not a readable ``.npz``, missing keys, or inconsistent shapes / values.
+        """
+        path = Path(path)
+        data = _io.load_npz(path, required=_REQUIRED)
+        try:
+            return cls(ControllerConfig(*(data[k] for k in _REQUIRED)))
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+
+    # --- state -----------------------------------------------------------------------
+    @property
+    def state(self) -> np.ndarray:
+        """Copy of the controller state ``x`` (shape ``(n_states,)``)."""
+        return self._xe[: self._n].copy()
+
+    def reset(self, x0=None) -> None:
+        """Set the state to zero (or to ``x0``, shape ``(n_states,)``)."""
+        if x0 is None:
+            self._xe[:] = 0.0
+            return
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape != (self._n,) or not np.all(np.isfinite(x0)):
+            raise ValueError(f"x0: expected {self._n} finite values, got shape {x0.shape}")
+        self._xe[: self._n] = x0
+        self._xe[self._n:] = 0.0
+
+    # --- stepping ----------------------------------------------------------------------
+    def step(self, error_V) -> np.ndarray:
+        """Advance one sample.
+
+        Parameters
+        ----------
+        error_V : array_like, shape (n_in,)
+            Tracking error ``r - y`` at sample k [sensor V] (X, Y, Z).
+
+        Returns
+        -------
+        ndarray, shape (n_out,)
+            Command ``u[k]`` [controller V] (A, B, C); the state advances to k+1.
+        """
+        e = np.asarray(error_V, dtype=float)
+        if e.shape != (self._nin,):
+            raise ValueError(f"error_V: expected shape ({self._nin},), got {e.shape}")
+        if not np.isfinite(e).all():
+            raise ValueError("error_V: contains NaN/inf")
+        xe = self._xe
+        n = self._n
+        xe[n:] = e
+        np.dot(self._M, xe, out=self._out)
+        xe[:n] = self._out[:n]
+        return self._out[n:].copy()
+
+    def run(self, error_seq, reset: bool = True) -> np.ndarray:
+        """Apply :meth:`step` to a whole sequence.
+
+        Parameters
+        ----------
+        error_seq : array_like, shape (N, n_in)
+            Errors [sensor V], one row per sample.
+        reset : bool, default True
+            Start from the zero state (otherwise continue from the current one).
+
+        Returns
+        -------
+        ndarray, shape (N, n_out)
+            Commands [controller V]. The state is left at sample N.
+        """
+        E = np.asarray(error_seq, dtype=float)
+        if E.ndim != 2 or E.shape[1] != self._nin:
+            raise ValueError(f"error_seq: expected shape (N, {self._nin}), got {E.shape}")
+        if not np.isfinite(E).all():
+            raise ValueError("error_seq: contains NaN/inf")
+        if reset:
+            self.reset()
+        n, M = self._n, self._M
+        A, B = M[:n, :n], M[:n, n:]
+        C, D = M[n:, :n], M[n:, n:]
+        U = E @ D.T                           # feedthrough part, vectorized
+        x = self._xe[:n].copy()
+        for k in range(E.shape[0]):
+            U[k] += C @ x
+            x = A @ x + B @ E[k]
+        self._xe[:n] = x
+        return U
+
+    def __repr__(self) -> str:
+        c = self.config
+        return (f"DiscreteController(n_states={c.n_states}, n_in={c.n_in}, n_out={c.n_out}, "
+                f"dt={c.dt:g} s, spectral_radius={c.spectral_radius:.6f})")
