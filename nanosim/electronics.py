@@ -41,6 +41,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from scipy.signal import lfilter
 
 from nanosim import constants as C
 from nanosim._validate import as_finite_array
@@ -70,16 +71,24 @@ class ElectronicsConfig:
     sample_rate_Hz : float
         Controller / acquisition sample rate (4 kHz).
     dac_quantization : bool
-        Quantise the command to ``dac_bits`` over ``+/-dac_full_scale_V``.
+        Quantise the command to ``dac_bits`` over ``dac_center_V +/- dac_full_scale_V``.
     dac_bits : int
         DAC resolution.
     dac_full_scale_V : float
-        DAC output range is ``+/-dac_full_scale_V`` (controller volts).
+        DAC output half-range (controller volts).
+    dac_center_V : float
+        Centre of the DAC output range (0 for a bipolar +/-10 V DAC; 3.25 V with
+        4.25 V half-range spans exactly the [-1, 7.5] V command range).
     dac_noise : bool
         Add white Gaussian noise to the DAC output.
     dac_noise_V : float
         Standard deviation of the DAC noise per sample, controller volts.
         Default 1 mV; calibrate so the open-loop probe std at rest is 11.4 nm.
+    dac_noise_corner_Hz : float or None
+        ``None``: white noise. Otherwise the noise passes a two-pole low-pass
+        ``b0 / (1 - a z^-1)^2``, ``a = exp(-2 pi fc / fs)``, scaled so its rms is
+        still ``dac_noise_V``: DAC and voltage-reference noise is dominated by
+        low-frequency (1/f, drift) components, and the amplifier rolls off.
     amplifier_gain : float
         Piezo volts per controller volt (20).
     saturation : bool
@@ -111,8 +120,10 @@ class ElectronicsConfig:
     dac_quantization: bool = True
     dac_bits: int = 16
     dac_full_scale_V: float = 10.0
+    dac_center_V: float = 0.0
     dac_noise: bool = True
     dac_noise_V: float = 1e-3
+    dac_noise_corner_Hz: float | None = None
     amplifier_gain: float = C.AMPLIFIER_GAIN
     saturation: bool = True
     command_range_V: tuple = C.COMMAND_RANGE_V
@@ -330,31 +341,40 @@ class ActuatorChain:
         self._gain = e.amplifier_gain
         self._lo, self._hi = e.command_range_V
         self._sigma = e.dac_noise_V if e.dac_noise else 0.0
+        fc = e.dac_noise_corner_Hz
+        a = math.exp(-2 * math.pi * fc / e.sample_rate_Hz) if (fc and self._sigma > 0) else 0.0
+        self._ar = a
+        # two equal poles (1 - a z^-1)^2, scaled to unit variance: var = (1 + a^2) / (1 - a^2)^3
+        self._ar_b0 = (1.0 - a * a) * math.sqrt((1.0 - a * a) / (1.0 + a * a)) if a else 1.0
+        self._ar_a1, self._ar_a2 = -2.0 * a, a * a
+        self._ar_state = np.zeros((2, self.n_channels))
         self._quant = e.dac_quantization
         if self._quant:
             self._lsb = e.dac_lsb_V
             self._code_lo = -float(2 ** (e.dac_bits - 1))
             self._code_hi = float(2 ** (e.dac_bits - 1) - 1)
+        self._center = e.dac_center_V
         self._sat = e.saturation
         # With saturation on and the command range well inside the DAC range, a
         # clipped DAC code always lands outside the command range (noise cannot
         # bring it back) and is flagged there: skip the separate DAC check.
         margin = 20.0 * self._sigma
-        self._dac_clip_implied = (self._quant and self._code_lo * self._lsb + margin < self._lo
-                                  and self._hi < self._code_hi * self._lsb - margin)
+        self._dac_clip_implied = (self._quant and self._center + self._code_lo * self._lsb + margin < self._lo
+                                  and self._hi < self._center + self._code_hi * self._lsb - margin)
 
     def reset(self) -> None:
         """Virgin piezo state, no creep history, DAC noise stream rewound."""
         self.piezo.reset()
         self._noise.reset()
+        self._ar_state = np.zeros((2, self.n_channels))
 
     def _electronics(self, u: np.ndarray, noise: np.ndarray | None):
         # Same ufunc sequence for (3,) and (N, 3) inputs: step and run agree bit for bit.
         maximum, minimum = np.maximum, np.minimum
         if self._quant:
-            code = np.rint(u / self._lsb)
+            code = np.rint((u - self._center) / self._lsb)
             code_c = minimum(maximum(code, self._code_lo), self._code_hi)
-            u_dac = code_c * self._lsb
+            u_dac = self._center + code_c * self._lsb
         else:
             code = code_c = None
             u_dac = u.copy()
@@ -386,6 +406,12 @@ class ActuatorChain:
         """
         u = _fast_vector("u_V", u_V, self.n_channels)
         noise = self._noise.take1() if self._sigma > 0.0 else None
+        if noise is not None and self._ar:
+            # DF-II transposed, as scipy.signal.lfilter: step == run bit for bit
+            z = self._ar_state
+            y = self._ar_b0 * noise + z[0]
+            self._ar_state = np.stack([z[1] - self._ar_a1 * y, -self._ar_a2 * y])
+            noise = y
         u_dac, v_piezo, sat = self._electronics(u, noise)
         v_free = self.piezo._step(v_piezo)
         return ActuatorSample(u_dac, v_piezo, v_free, sat)
@@ -405,6 +431,10 @@ class ActuatorChain:
         """
         u = as_finite_array("u_V", u_V, shape=(None, self.n_channels))
         noise = self._noise.take(u.shape[0]) if self._sigma > 0.0 else None
+        if noise is not None and self._ar and len(noise):
+            noise, zf = lfilter([self._ar_b0, 0.0, 0.0], [1.0, self._ar_a1, self._ar_a2], noise, axis=0,
+                                zi=self._ar_state)
+            self._ar_state = zf
         u_dac, v_piezo, sat = self._electronics(u, noise)
         v_free = self.piezo._run(v_piezo)
         return ActuatorSample(u_dac, v_piezo, v_free, sat)

@@ -283,3 +283,34 @@ def test_bench_sensor_step(benchmark):
     sensor = SensorChain(seed=0)
     d = np.array([1.0, -2.0, 3.0])
     benchmark(sensor.step, d)
+
+
+# --- shaped DAC noise and a DAC spanning the command range (nanosim.stage bench settings) -----
+def test_shaped_dac_noise_keeps_rms_and_rolls_off_two_poles():
+    from scipy.signal import welch
+    e = ElectronicsConfig.ideal(dac_noise=True, dac_noise_V=1e-3, dac_noise_corner_Hz=10.0)
+    n = ActuatorChain(e, PiezoConfig.linear(), seed=5).run(np.zeros((400_000, 3))).u_dac_V
+    np.testing.assert_allclose(n.std(axis=0), 1e-3, rtol=0.06)
+    f, p = welch(n[:, 0], fs=4000.0, nperseg=8192)
+    # two poles at 10 Hz: PSD(200 Hz) / PSD(2 Hz) ~ ((1+0.04)/(1+400))^2 = 6.7e-6
+    ratio = np.interp(200.0, f, p) / np.interp(2.0, f, p)
+    assert ratio < 3e-5
+
+
+def test_shaped_dac_noise_step_equals_run_bit_for_bit():
+    e = ElectronicsConfig(dac_noise_V=1e-3, dac_noise_corner_Hz=10.0)
+    a = ActuatorChain(e, seed=2)
+    b = ActuatorChain(e, seed=2)
+    u = np.random.default_rng(0).uniform(0, 2, size=(2000, 3))
+    r = a.run(u)
+    s = np.array([b.step(x).v_free_V for x in u])
+    assert np.array_equal(r.v_free_V, s)
+
+
+def test_dac_spanning_command_range_has_finer_lsb_and_exact_ends():
+    e = ElectronicsConfig.ideal(dac_quantization=True, saturation=True, dac_full_scale_V=4.25, dac_center_V=3.25)
+    np.testing.assert_allclose(e.dac_lsb_V, 8.5 / 2**16, rtol=1e-12)
+    s = ActuatorChain(e, PiezoConfig.linear()).run(np.array([[-1.0, 1.0, 7.6]]))
+    np.testing.assert_allclose(s.u_dac_V[0, 0], -1.0, atol=1e-15)
+    assert abs(s.u_dac_V[0, 1] - 1.0) <= e.dac_lsb_V / 2
+    assert s.saturated[0].tolist() == [False, False, True]
