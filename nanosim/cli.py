@@ -7,6 +7,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 
 def _cmd_modes(args) -> int:
     from .model import load_model
@@ -36,8 +38,6 @@ def _cmd_modes(args) -> int:
 
 def _cmd_pipeline(args) -> int:
     from ._io import write_json
-    from .model import load_model
-    from .modes import modes_json
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -66,13 +66,73 @@ def _cmd_pipeline(args) -> int:
 def _stage_modes(args, out: Path) -> None:
     from ._io import write_json
     from .model import load_model
-    from .modes import modes_json
+    from .modes import modes_json, modal_analysis, plot_mode_shapes
 
-    write_json(out / "modes.json", modes_json(load_model(args.mjcf)))
+    model = load_model(args.mjcf)
+    write_json(out / "modes.json", modes_json(model))
+    plot_mode_shapes(model, modal_analysis(model), out / "modes")
+
+
+def _twin_npz(out: Path, mjcf=None) -> Path:
+    from ._io import write_npz
+    from .linear import linearize
+    from .stage import Stage, StageConfig
+
+    tw = linearize(Stage(config=StageConfig.ideal(), mjcf=mjcf))
+    s = tw.sys_V
+    return write_npz(out / "twin.npz", A=s.A, B=s.B, C=s.C, D=s.D, Ad=tw.sysd_V.A, Bd=tw.sysd_V.B,
+                     Cd=tw.sysd_V.C, Dd=tw.sysd_V.D, dt=tw.dt_s,
+                     units=np.array("controller V -> sensor V (5 um/V); ideal MuJoCo stage, linear piezo"))
+
+
+def _stage_identify(args, out: Path) -> None:
+    from .identify import run_identify
+    from .linear import linearize
+    from .model import load_model
+    from .stage import Stage, StageConfig
+
+    model = load_model(args.mjcf)
+    twin = linearize(Stage(config=StageConfig.ideal(), model=model))
+    run_identify(out, seed=args.seed, order=getattr(args, "order", 13), ideal=getattr(args, "ideal", False),
+                 model=model, twin=twin)
+
+
+def _stage_design(args, out: Path) -> None:
+    from .design import run_design
+
+    model = getattr(args, "model", None) or out / "model.npz"
+    run_design(model, out, weights=getattr(args, "weights", None), reduced_order=getattr(args, "reduced_order", 10),
+               twin=str(_twin_npz(out, args.mjcf)), progress=False)
+
+
+def _stage_characterize(args, out: Path) -> None:
+    from .characterize import run_characterize
+
+    controller = getattr(args, "controller", None) or out / "controller.npz"
+    run_characterize(controller, out, seed=args.seed, only=getattr(args, "only", None),
+                     twin=getattr(args, "twin", False), mjcf=args.mjcf, progress=True)
+
+
+def _stage_report(args, out: Path) -> None:
+    from .report import write_report
+
+    write_report(out)
 
 
 def _pipeline_stages():
-    return [("modes", _stage_modes)]
+    return [("modes", _stage_modes), ("identify", _stage_identify), ("design", _stage_design),
+            ("characterize", _stage_characterize), ("report", _stage_report)]
+
+
+def _single(stage_fn):
+    def run(args) -> int:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        stage_fn(args, out)
+        print(f"{args.command} done in {time.perf_counter() - t0:.1f} s; artifacts in {out}")
+        return 0
+    return run
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -84,10 +144,34 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--plot", metavar="DIR", default=None, help="write one PNG per mode shape into DIR")
     m.add_argument("--fmax", type=float, default=1000.0, help="list modes below this frequency (Hz)")
     m.set_defaults(func=_cmd_modes)
+    i = sub.add_parser("identify", help="identify the 3x3 model from simulated experiments")
+    i.add_argument("--out", required=True, help="run folder for artifacts")
+    i.add_argument("--seed", type=int, default=0)
+    i.add_argument("--order", type=int, default=13, help="states per 3x1 column (0: choose from singular values)")
+    i.add_argument("--ideal", action="store_true", help="every electromechanical effect off")
+    i.add_argument("--mjcf", default=None)
+    i.set_defaults(func=_single(_stage_identify))
+    d = sub.add_parser("design", help="reduce the model and synthesize the H-infinity controller")
+    d.add_argument("--model", required=True, help="model.npz from 'nanosim identify'")
+    d.add_argument("--out", required=True)
+    d.add_argument("--weights", default=None, help="JSON or TOML file with Wp, Wt, Wu (default: the paper's)")
+    d.add_argument("--reduced-order", dest="reduced_order", type=int, default=10)
+    d.add_argument("--mjcf", default=None)
+    d.set_defaults(func=_single(_stage_design))
+    c = sub.add_parser("characterize", help="closed-loop experiments of the paper's Section 5")
+    c.add_argument("--controller", required=True, help="controller.npz from 'nanosim design'")
+    c.add_argument("--out", required=True)
+    c.add_argument("--only", default=None, help="run one experiment: " + ", ".join(
+        ("hysteresis", "creep", "resolution", "small_steps", "bandwidth", "tracking", "contouring")))
+    c.add_argument("--twin", action="store_true", help="run against the linear twin (same electromechanics)")
+    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--mjcf", default=None)
+    c.set_defaults(func=_single(_stage_characterize))
     pl = sub.add_parser("pipeline", help="run the whole chain on the bundled stage")
     pl.add_argument("--out", required=True, help="run folder for artifacts")
     pl.add_argument("--seed", type=int, default=0)
     pl.add_argument("--mjcf", default=None)
+    pl.add_argument("--twin", action="store_true", help="characterize against the linear twin")
     pl.set_defaults(func=_cmd_pipeline)
     try:
         from .viewer import add_view_arguments, run_view

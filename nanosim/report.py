@@ -1,0 +1,206 @@
+"""report.md and report.html: every figure and the paper-vs-simulation table of a run folder."""
+from __future__ import annotations
+
+import html
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from . import constants as C
+from ._io import write_text
+
+# (section, label, paper value, unit, getter on the run's json dicts, acceptance test, band text)
+PAPER = {
+    "modes": C.PAPER_MODES_HZ, "gamma": C.PAPER_GAMMA, "order": C.PAPER_CONTROLLER_ORDER,
+    "S_nom": 1.45, "S_full": 1.85, "bwS": 32.0, "bwT": 59.0, "rise": 5.0, "peak": 8.0, "settle": 11.0,
+    "over": 8.0, "sig_o": 11.4, "sig_c": 1.89, "s2_o": 22.6, "s2_c": 4.8, "s3_o": 30.1, "s3_c": 6.9,
+    "hyst_o": 15.0, "hyst_c": 20.0, "contour_mean": 40.0, "contour_max": 70.0, "axis_err": 3.0,
+}
+
+
+def _load(run: Path, name: str) -> dict:
+    p = run / name
+    return json.loads(p.read_text()) if p.is_file() else {}
+
+
+def _get(d, *keys):
+    for k in keys:
+        if isinstance(d, dict) and k in d:
+            d = d[k]
+        elif isinstance(d, list) and isinstance(k, int) and k < len(d):
+            d = d[k]
+        else:
+            return None
+    return d
+
+
+def _rows(run: Path):
+    modes, ident, des, met = (_load(run, n) for n in ("modes.json", "identify.json", "design.json", "metrics.json"))
+    rows = []
+
+    def add(section, label, paper, sim, unit, ok=None, band=""):
+        rows.append((section, label, paper, sim, unit, ok, band))
+
+    found = [m["freq_hz"] for m in modes.get("modes", [])]
+    for f, axis in zip(C.PAPER_MODES_HZ, C.PAPER_MODE_AXES):
+        near = min(found, key=lambda x: abs(x - f)) if found else None
+        add("Stage model (Sec. 3)", f"mode near {f:.0f} Hz ({axis})", f, near, "Hz",
+            None if near is None else abs(near - f) <= 0.03 * f, "within 3 %")
+    g = modes.get("static_gain_um_per_V")
+    if g is not None:
+        ref = C.STATIC_GAIN_SCALE_UM_PER_V * C.JACOBIAN_J
+        err = float(np.abs(np.array(g) - ref).max() / np.abs(ref).max())
+        add("Stage model (Sec. 3)", "static gain vs 3.0 um/V x J (max error / max element)", 0.0, err, "-",
+            err <= 0.05, "<= 0.05")
+    cv = modes.get("constraint_violation_ratio")
+    add("Stage model (Sec. 3)", "loop-closure violation at full stroke", None, None if cv is None else 100 * cv, "%",
+        None if cv is None else cv < 0.005, "< 0.5 %")
+    fit = ident.get("fit_percent")
+    for i, ax in enumerate(C.AXES):
+        for j, act in enumerate(C.ACTUATORS):
+            v = _get(fit, i, j)
+            add("Identification (Table 1)", f"fit {act} -> {ax}", float(C.PAPER_FIT_PERCENT[i, j]), v, "%",
+                None if v is None else v >= 90.0, ">= 90 %")
+    add("Identification (Table 1)", "total model order", 39, ident.get("total_order"), "states", None, "")
+    spec = [
+        ("gamma", PAPER["gamma"], des.get("gamma"), "-", lambda v: v <= 1.5, "<= 1.5"),
+        ("controller order", PAPER["order"], des.get("controller_order"), "states", lambda v: v == 19, "= 19"),
+        ("peak sigma(S), nominal model", PAPER["S_nom"], des.get("S_peak_nominal"), "-", lambda v: v <= 1.5, "<= 1.5"),
+        ("peak sigma(S), full model", PAPER["S_full"], des.get("S_peak_full"), "-", lambda v: v <= 1.9, "<= 1.9"),
+        ("S bandwidth (design)", PAPER["bwS"], des.get("bandwidth_S_hz"), "Hz", lambda v: v >= 30, ">= 30 Hz"),
+        ("T bandwidth (design)", PAPER["bwT"], des.get("bandwidth_T_hz"), "Hz", lambda v: v >= 55, ">= 55 Hz"),
+    ]
+    for label, p, v, u, ok, band in spec:
+        add("H-infinity design (Sec. 4)", label, p, v, u, None if v is None else ok(v), band)
+    c1000 = next((c for c in met.get("contouring", []) if round(c.get("speed_um_s", 0)) == 1000), {})
+    spec = [
+        ("S bandwidth on the stage", PAPER["bwS"], met.get("bandwidth_S_hz"), "Hz", lambda v: v >= 28, ">= 28 Hz"),
+        ("T bandwidth on the stage", PAPER["bwT"], met.get("bandwidth_T_hz"), "Hz", None, ""),
+        ("2 um step rise time", PAPER["rise"], _get(met, "step_2um", "rise_ms"), "ms", None, ""),
+        ("2 um step peak time", PAPER["peak"], _get(met, "step_2um", "peak_ms"), "ms", None, ""),
+        ("2 um step settling (2 %)", PAPER["settle"], _get(met, "step_2um", "settling_ms"), "ms", lambda v: v <= 20, "<= 20 ms"),
+        ("2 um step overshoot", PAPER["over"], _get(met, "step_2um", "overshoot_percent"), "%", lambda v: v <= 15, "<= 15 %"),
+        ("resolution sigma, open loop", PAPER["sig_o"], _get(met, "resolution_sigma_nm", "open_loop"), "nm",
+         lambda v: 9.12 <= v <= 13.68, "11.4 +/- 20 %"),
+        ("resolution sigma, closed loop", PAPER["sig_c"], _get(met, "resolution_sigma_nm", "closed_loop"), "nm",
+         lambda v: v < 3.0, "< 3 nm"),
+        ("95.45 % band, open loop", PAPER["s2_o"], _get(met, "resolution_2sigma_nm", "open_loop"), "nm", None, ""),
+        ("95.45 % band, closed loop", PAPER["s2_c"], _get(met, "resolution_2sigma_nm", "closed_loop"), "nm", None, ""),
+        ("99.73 % band, open loop", PAPER["s3_o"], _get(met, "resolution_3sigma_nm", "open_loop"), "nm", None, ""),
+        ("99.73 % band, closed loop", PAPER["s3_c"], _get(met, "resolution_3sigma_nm", "closed_loop"), "nm", None, ""),
+        ("output hysteresis, open loop", PAPER["hyst_o"], _get(met, "hysteresis", "open_loop_percent"), "%",
+         lambda v: 12 <= v <= 18, "15 +/- 3 %"),
+        ("hysteresis, closed loop (20 um)", PAPER["hyst_c"], _get(met, "hysteresis", "closed_loop_nm"), "nm",
+         lambda v: v < 50, "< 50 nm (0.25 %)"),
+        ("creep drift over 10 s, open loop", None, _get(met, "creep", "open_loop_drift_nm"), "nm", lambda v: v > 50, "> 50 nm"),
+        ("creep drift over 10 s, closed loop", 0.0, _get(met, "creep", "closed_loop_drift_nm"), "nm", lambda v: v < 5, "< 5 nm"),
+        ("contour error at 1000 um/s, mean", PAPER["contour_mean"], c1000.get("mean_error_nm"), "nm", lambda v: v < 100, "< 100 nm"),
+        ("contour error at 1000 um/s, max", PAPER["contour_max"], c1000.get("max_error_nm"), "nm", None, ""),
+        ("axis tracking error at 1000 um/s", PAPER["axis_err"], c1000.get("axis_tracking_error_um"), "um", None, ""),
+    ]
+    for label, p, v, u, ok, band in spec:
+        add("Closed loop on the MuJoCo stage (Sec. 5)", label, p, v, u, None if (v is None or ok is None) else ok(v), band)
+    for i, p in enumerate(_get(met, "small_steps", "plateau_means_nm") or []):
+        t = 10.0 * i
+        if i:
+            add("Closed loop on the MuJoCo stage (Sec. 5)", f"10 nm staircase, plateau {i}", t, p, "nm",
+                abs(p - t) <= 3.0, "within 3 nm")
+    return rows
+
+
+def _fmt(v):
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "n/a"
+    if isinstance(v, (int, np.integer)):
+        return str(v)
+    return f"{v:.4g}"
+
+
+def _diff(p, s):
+    if p is None or s is None or not isinstance(p, (int, float)) or not isinstance(s, (int, float)):
+        return ""
+    d = s - p
+    return f"{d:+.3g}" + (f" ({100 * d / p:+.0f} %)" if p else "")
+
+
+FIGURES = [
+    ("Mode shapes (first mode)", "modes/mode_01_*.png"),
+    ("Identification: time-domain fit (Fig. 4)", "fig04_time_domain_fit.png"),
+    ("Identified frequency response vs linear twin (Fig. 5)", "fig05_identified_frequency_response.png"),
+    ("Parametric vs non-parametric (Fig. 6)", "fig06_parametric_vs_h1.png"),
+    ("Two operating points (Fig. 7)", "fig07_operating_points.png"),
+    ("Subspace singular values", "singular_values.png"),
+    ("Hankel singular values (Fig. 8)", "fig08*.png"),
+    ("Full vs reduced model (Fig. 9)", "fig09*.png"),
+    ("Multiplicative uncertainty (Fig. 10)", "fig10*.png"),
+    ("Weights and sensitivities (Figs. 11b, 12)", "fig11*.png"),
+    ("Sensitivity with nominal and full models (Fig. 12)", "fig12*.png"),
+    ("Closed-loop design singular values (Fig. 18 a-b)", "fig18_*design*.png"),
+    ("Closed-loop Bode grid (Figs. 13, 21)", "fig21*.png"),
+    ("Controller Bode grid (Fig. 22)", "fig22*.png"),
+    ("Hysteresis, open and closed loop (Fig. 14)", "fig14_hysteresis.png"),
+    ("Creep (Fig. 15)", "fig15_creep.png"),
+    ("Resolution and PSD (Fig. 16)", "fig16_resolution.png"),
+    ("10 nm steps (Fig. 17)", "fig17_small_steps.png"),
+    ("Measured bandwidth and 2 um step (Fig. 18)", "fig18_bandwidth_step.png"),
+    ("Tracking (Fig. 19)", "fig19_tracking.png"),
+    ("Contouring (Fig. 20)", "fig20_contouring.png"),
+]
+
+
+def _figures(run: Path):
+    seen, out = set(), []
+    for title, pattern in FIGURES:
+        for p in sorted(run.glob(pattern)):
+            if p.name not in seen:
+                seen.add(p.name)
+                out.append((title, p.relative_to(run).as_posix()))
+    return out
+
+
+def write_report(run_dir) -> tuple[Path, Path]:
+    """Write report.md and report.html into ``run_dir`` from its json files and figures."""
+    run = Path(run_dir)
+    rows = _rows(run)
+    timing = _load(run, "pipeline.json").get("stage_seconds", {})
+    met = _load(run, "metrics.json")
+    n_ok = sum(1 for r in rows if r[5] is True)
+    n_band = sum(1 for r in rows if r[5] is not None)
+    intro = ("Simulated reproduction of *Robust Control of a Parallel-Kinematic Nanopositioner* "
+             "(J. Dyn. Sys., Meas., Control 130, 2008): MuJoCo stage -> identification -> H-infinity design -> "
+             f"closed-loop experiments. Plant for Sec. 5: {met.get('plant', 'n/a')}. "
+             f"{n_ok} of {n_band} checked quantities are inside their acceptance bands.")
+    md = ["# nanosim report", "", intro, ""]
+    if timing:
+        md += ["Stage wall times (s): " + ", ".join(f"{k} {v}" for k, v in timing.items()), ""]
+    md += ["## Paper vs simulation", "", "| section | quantity | paper | simulation | difference | unit | band | ok |",
+           "|---|---|---|---|---|---|---|---|"]
+    for sec, label, p, s, u, ok, band in rows:
+        mark = "" if ok is None else ("yes" if ok else "**NO**")
+        md.append(f"| {sec} | {label} | {_fmt(p)} | {_fmt(s)} | {_diff(p, s)} | {u} | {band} | {mark} |")
+    md += ["", "## Figures", ""]
+    figs = _figures(run)
+    for title, rel in figs:
+        md += [f"### {title}", "", f"![{title}]({rel})", ""]
+    md_path = write_text(run / "report.md", "\n".join(md) + "\n")
+    h = ["<!doctype html><html><head><meta charset='utf-8'><title>nanosim report</title>",
+         "<style>body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}"
+         "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
+         "tr.no{background:#fde2e2}tr.yes{background:#e6f4e6}img{max-width:100%}</style></head><body>",
+         "<h1>nanosim report</h1>", f"<p>{html.escape(intro)}</p>"]
+    if timing:
+        h.append("<p>Stage wall times (s): " + html.escape(", ".join(f"{k} {v}" for k, v in timing.items())) + "</p>")
+    h.append("<h2>Paper vs simulation</h2><table><tr><th>section</th><th>quantity</th><th>paper</th>"
+             "<th>simulation</th><th>difference</th><th>unit</th><th>band</th><th>ok</th></tr>")
+    for sec, label, p, s, u, ok, band in rows:
+        cls = "" if ok is None else (" class='yes'" if ok else " class='no'")
+        cells = [sec, label, _fmt(p), _fmt(s), _diff(p, s), u, band, "" if ok is None else ("yes" if ok else "NO")]
+        h.append(f"<tr{cls}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
+    h.append("</table><h2>Figures</h2>")
+    for title, rel in figs:
+        h.append(f"<h3>{html.escape(title)}</h3><img src='{html.escape(rel)}' alt='{html.escape(title)}'>")
+    h.append("</body></html>")
+    html_path = write_text(run / "report.html", "\n".join(h) + "\n")
+    return md_path, html_path

@@ -1,0 +1,60 @@
+"""Simulation speed: bare mj_step vs Stage.run with every effect on, in the same run.
+
+Run: python -m pytest tests/bench/bench_stage.py --benchmark-enable -s
+Reports simulated seconds per wall second for each, and their cost ratio.
+Targets (issue 3): Stage.run >= 2x real time; Stage.run costs <= 1.3x bare stepping.
+"""
+import time
+
+import mujoco
+import numpy as np
+import pytest
+
+from nanosim.mechanics import home_data
+from nanosim.stage import Stage
+
+SIM_S = 1.0
+
+
+def _bare(model):
+    d = home_data(model)
+    n_sub = int(round(2.5e-4 / model.opt.timestep))
+    for _ in range(int(SIM_S * 4000)):
+        d.ctrl[:] = 1.0
+        mujoco.mj_step(model, d, n_sub)
+
+
+def _stage(st, u):
+    st.reset()
+    st.run(u)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    st = Stage(seed=0)
+    u = np.random.default_rng(0).uniform(0, 1, size=(int(SIM_S * 4000), 3))
+    return st, u
+
+
+def test_bare_mj_step(benchmark, setup):
+    st, _ = setup
+    benchmark.pedantic(_bare, args=(st.model,), rounds=3, iterations=1)
+    benchmark.extra_info["sim_s_per_wall_s"] = SIM_S / benchmark.stats["mean"]
+
+
+def test_stage_run_all_effects(benchmark, setup):
+    st, u = setup
+    benchmark.pedantic(_stage, args=(st, u), rounds=3, iterations=1)
+    benchmark.extra_info["sim_s_per_wall_s"] = SIM_S / benchmark.stats["mean"]
+
+
+def test_ratio_report(setup):
+    st, u = setup
+    t0 = time.perf_counter()
+    _bare(st.model)
+    bare = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _stage(st, u)
+    stage = time.perf_counter() - t0
+    print(f"\nbare mj_step: {SIM_S / bare:.2f} x real time; Stage.run (all effects): {SIM_S / stage:.2f} x real "
+          f"time; cost ratio Stage/bare = {stage / bare:.2f}")

@@ -1,0 +1,96 @@
+"""Command line: JSON contents, one-line errors, determinism, and the pipeline end to end."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from nanosim import constants as C
+from nanosim._io import write_npz
+
+
+def run(*args, check=True):
+    p = subprocess.run([sys.executable, "-m", "nanosim.cli", *args], capture_output=True, text=True, timeout=900)
+    if check and p.returncode:
+        raise AssertionError(p.stderr)
+    return p
+
+
+def test_modes_json_has_the_issue_keys_and_paper_modes():
+    data = json.loads(run("modes", "--json").stdout)
+    assert {"modes", "static_gain_um_per_V", "constraint_violation_ratio"} <= set(data)
+    f = [m["freq_hz"] for m in data["modes"]]
+    assert f == sorted(f) and len(f) == 6
+    assert_allclose(f, C.PAPER_MODES_HZ, rtol=0.03)
+    assert all({"freq_hz", "damping_ratio", "axis", "sensor_participation"} <= set(m) for m in data["modes"])
+
+
+@pytest.mark.parametrize("args, needle", [
+    (("modes", "--mjcf", "/nonexistent.xml"), "no such file"),
+    (("design", "--model", "/nonexistent/model.npz", "--out", "{tmp}"), "no such file"),
+    (("characterize", "--controller", "/nonexistent/controller.npz", "--out", "{tmp}"), "no such file"),
+    (("characterize", "--controller", "{ctrl}", "--out", "{tmp}", "--only", "warp_drive"), "unknown experiment"),
+])
+def test_user_errors_are_one_line_without_traceback(tmp_path, args, needle):
+    ctrl = tmp_path / "c.npz"
+    write_npz(ctrl, Akd=np.zeros((1, 1)), Bkd=np.zeros((1, 3)), Ckd=np.zeros((3, 1)), Dkd=np.zeros((3, 3)), dt=2.5e-4)
+    args = [a.format(tmp=tmp_path / "out", ctrl=ctrl) for a in args]
+    p = run(*args, check=False)
+    assert p.returncode == 2
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], p.stderr
+    assert "Traceback" not in p.stderr
+
+
+def test_malformed_mjcf_is_one_line(tmp_path):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<mujoco><worldbody><body>")
+    p = run("modes", "--mjcf", str(bad), check=False)
+    assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1
+
+
+def test_same_seed_same_numbers(tmp_path):
+    from nanosim.design import design_hinf, discretize_controller, reduce_model
+    from nanosim.linear import linearize
+    from nanosim.stage import Stage, StageConfig
+
+    twin = linearize(Stage(config=StageConfig.ideal()))
+    d = design_hinf(reduce_model(twin.sys_V, order=10).G_reduced)
+    kd = discretize_controller(d.K, dt=1 / 4000).Kd
+    ctrl = write_npz(tmp_path / "controller.npz", Akd=kd.A, Bkd=kd.B, Ckd=kd.C, Dkd=kd.D, dt=1 / 4000)
+    out = []
+    for k in range(2):
+        run("characterize", "--controller", str(ctrl), "--out", str(tmp_path / f"r{k}"), "--only", "small_steps",
+            "--seed", "7")
+        m = json.loads((tmp_path / f"r{k}" / "metrics.json").read_text())
+        out.append(m["small_steps"])
+    assert out[0] == out[1]
+
+
+@pytest.mark.slow
+def test_pipeline_end_to_end(tmp_path):
+    """The main job: modes, identify, design, characterize, report, on the bundled stage."""
+    run_dir = tmp_path / "run"
+    run("pipeline", "--out", str(run_dir), "--seed", "0")
+    for name in ("modes.json", "identify.json", "design.json", "metrics.json", "report.md", "report.html",
+                 "model.npz", "controller.npz", "fig14_hysteresis.png", "fig20_contouring.png"):
+        assert (run_dir / name).is_file(), name
+    ident = json.loads((run_dir / "identify.json").read_text())
+    assert np.min(ident["fit_percent"]) >= 90.0                       # paper 88.5-96.1 %
+    design = json.loads((run_dir / "design.json").read_text())
+    assert design["controller_order"] == 19 and design["gamma"] <= 1.5    # paper 19, 1.34
+    assert design["S_peak_nominal"] <= 1.5 and design["S_peak_full"] <= 1.9
+    m = json.loads((run_dir / "metrics.json").read_text())
+    assert 12.0 <= m["hysteresis"]["open_loop_percent"] <= 18.0          # paper 15 %
+    assert m["hysteresis"]["closed_loop_nm"] < 50.0                      # < 0.25 % of 20 um
+    assert m["creep"]["closed_loop_drift_nm"] < 5.0 < 50.0 < m["creep"]["open_loop_drift_nm"]
+    assert m["resolution_sigma_nm"]["closed_loop"] < m["resolution_sigma_nm"]["open_loop"]
+    report = (run_dir / "report.md").read_text()
+    assert "Paper vs simulation" in report and "![" in report
+    shared = Path(__file__).resolve().parents[2] / "shared" / "tools" / "compare_to_paper.py"
+    if shared.is_file():
+        p = subprocess.run([sys.executable, str(shared), str(run_dir)], capture_output=True, text=True)
+        assert "inside their bands" in p.stdout
