@@ -374,7 +374,7 @@ def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40)
             t = np.arange(n) / FS
             ref = np.zeros((n, 3))
             ref[:, axis] = _wave(kind, f, t, amplitude_um)
-            cl = run_closed_loop(factory(seed), controller, ref)
+            cl = run_closed_loop(factory(seed), controller, interpolate(ref))
             keep = slice(int(1 / f * FS), n)
             e = cl.error_um[keep, axis] * 1e3
             tt = t[keep]
@@ -396,17 +396,36 @@ class ContourCase:
     axis_tracking_error_um: float
 
 
-def contour_reference(speed_um_s, corner_um=20.0, fs=FS, dwell_s=0.02):
-    """45 degree line (0,0) -> (c,c) -> (0,0) at constant speed along the path (um)."""
+INTERPOLATION_S = 0.0025
+
+
+def interpolate(ref_um, smoothing_s: float = INTERPOLATION_S, fs: float = FS) -> np.ndarray:
+    """The motion controller's command interpolation: two moving averages of ``smoothing_s``.
+
+    The paper's UMAC interpolates commands (Sec. 5: "the command signals ... get
+    round off at the corner"); two boxcars give an S-curve with finite
+    acceleration and jerk. Straight paths stay on their line.
+    """
+    n = max(1, int(round(smoothing_s * fs)))
+    if n == 1:
+        return np.asarray(ref_um, float)
+    k = np.ones(n) / n
+    pad = np.pad(np.asarray(ref_um, float), ((2 * n, 2 * n), (0, 0)), mode="edge")
+    out = np.apply_along_axis(lambda c: np.convolve(np.convolve(c, k, "same"), k, "same"), 0, pad)
+    return out[2 * n:-2 * n]
+
+
+def contour_reference(speed_um_s, corner_um=20.0, fs=FS, dwell_s=0.02, smoothing_s=INTERPOLATION_S):
+    """45 degree line (0,0) -> (c,c) -> (0,0) at constant speed along the path (um), interpolated."""
     length = np.hypot(corner_um, corner_um)
     n = max(2, int(round(length / speed_um_s * fs)))
     s = np.linspace(0, 1, n)
     dwell = np.ones(int(dwell_s * fs))
-    leg = np.concatenate([s, dwell, s[::-1]]) * corner_um
+    leg = np.concatenate([np.zeros(int(dwell_s * fs)), s, dwell, s[::-1]]) * corner_um
     ref = np.zeros((len(leg) + int(dwell_s * fs), 3))
     ref[:len(leg), 0] = leg
     ref[:len(leg), 1] = leg
-    return ref
+    return interpolate(ref, smoothing_s, fs)
 
 
 def contouring(factory: StageFactory, controller, seed=0, speeds_um_s=(10, 30, 100, 300, 1000)) -> list:
