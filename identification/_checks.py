@@ -52,6 +52,29 @@ def as_matrix(name: str, value, *, rows: int | None = None, cols: int | None = N
     return arr
 
 
+def square_matrix(name: str, value) -> np.ndarray:
+    """Return ``value`` as a finite square float matrix (see :func:`as_matrix`)."""
+    arr = as_matrix(name, value)
+    if arr.shape[0] != arr.shape[1]:
+        raise ValueError(f"{name}: expected a square matrix, got shape {arr.shape}")
+    return arr
+
+
+def state_space(A, B, C, D, *, prefix: str = "") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Return state-space matrices as finite float matrices of consistent shapes.
+
+    ``A`` must be square ``(n, n)``, ``B`` have ``n`` rows, ``C`` ``n``
+    columns and ``D`` shape ``(n_outputs, n_inputs)``.  Errors name each matrix
+    as ``prefix + "A"`` etc. (e.g. ``prefix="model."``).
+    """
+    A = square_matrix(f"{prefix}A", A)
+    n = A.shape[0]
+    B = as_matrix(f"{prefix}B", B, rows=n)
+    C = as_matrix(f"{prefix}C", C, cols=n)
+    D = as_matrix(f"{prefix}D", D, rows=C.shape[0], cols=B.shape[1])
+    return A, B, C, D
+
+
 def same_length(name_a: str, a: np.ndarray, name_b: str, b: np.ndarray) -> None:
     if a.shape[0] != b.shape[0]:
         raise ValueError(
@@ -85,6 +108,20 @@ def positive_int(name: str, value, *, minimum: int = 1) -> int:
     if v < minimum:
         raise ValueError(f"{name}: expected an integer >= {minimum}, got {v}")
     return v
+
+
+def welch_segment_length(nperseg, n: int, fs: float) -> int:
+    """Checked Welch segment length for ``n`` samples at ``fs`` Hz.
+
+    Default ``min(n, max(256, round(fs)))`` (about 1 Hz resolution when
+    enough data is available); an integer in ``[2, n]`` otherwise.
+    """
+    if nperseg is None:
+        nperseg = min(n, max(256, int(round(fs))))
+    nperseg = positive_int("nperseg", nperseg, minimum=2)
+    if nperseg > n:
+        raise ValueError(f"nperseg: expected at most n_samples={n}, got {nperseg}")
+    return nperseg
 
 
 def not_degenerate(name: str, arr: np.ndarray) -> None:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import as_matrix, frozen_array, positive_float
+from ._checks import frozen_array, positive_float, state_space
 
 __all__ = ["ContinuousModel", "d2c_tustin", "d2c_zoh", "d2c"]
 
@@ -84,13 +84,8 @@ def d2c_tustin(A, B, C, D, dt: float, *, prewarp_hz: float | None = None) -> Con
     ValueError
         If ``A`` has an eigenvalue at ``z = -1`` (it maps to ``s = inf``).
     """
-    A = as_matrix("A", A)
+    A, B, C, D = state_space(A, B, C, D)
     n = A.shape[0]
-    if A.shape != (n, n):
-        raise ValueError(f"A: expected a square matrix, got shape {A.shape}")
-    B = as_matrix("B", B, rows=n)
-    C = as_matrix("C", C, cols=n)
-    D = as_matrix("D", D, rows=C.shape[0], cols=B.shape[1])
     dt = positive_float("dt", dt)
     tw = _warped_period(dt, prewarp_hz)
     M = A + np.eye(n)
@@ -134,13 +129,8 @@ def d2c_zoh(A, B, C, D, dt: float) -> ContinuousModel:
     """
     import scipy.linalg as la
 
-    A = as_matrix("A", A)
+    A, B, C, D = state_space(A, B, C, D)
     n = A.shape[0]
-    if A.shape != (n, n):
-        raise ValueError(f"A: expected a square matrix, got shape {A.shape}")
-    B = as_matrix("B", B, rows=n)
-    C = as_matrix("C", C, cols=n)
-    D = as_matrix("D", D, rows=C.shape[0], cols=B.shape[1])
     dt = positive_float("dt", dt)
     lam = np.linalg.eigvals(A)
     bad = (np.abs(lam.imag) <= 1e-12 * np.maximum(np.abs(lam), 1e-300)) & (lam.real <= 0)

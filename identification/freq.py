@@ -13,7 +13,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal as _sig
 
-from ._checks import as_matrix, as_signal, frozen_array, not_degenerate, positive_float, positive_int, same_length
+from ._checks import (
+    as_signal,
+    frozen_array,
+    not_degenerate,
+    positive_float,
+    same_length,
+    state_space,
+    welch_segment_length,
+)
 
 __all__ = ["H1Estimate", "h1_estimate", "frequency_response"]
 
@@ -94,11 +102,7 @@ def h1_estimate(
     fs = positive_float("fs", fs)
     not_degenerate("u", us)
     n = us.shape[0]
-    if nperseg is None:
-        nperseg = min(n, max(256, int(round(fs))))
-    nperseg = positive_int("nperseg", nperseg, minimum=2)
-    if nperseg > n:
-        raise ValueError(f"nperseg: expected at most n_samples={n}, got {nperseg}")
+    nperseg = welch_segment_length(nperseg, n, fs)
     kw = dict(fs=fs, window=window, nperseg=nperseg, noverlap=noverlap, detrend=detrend, axis=-1)
     U = us.T
     Y = ys.T
@@ -156,13 +160,7 @@ def _system_matrices(system, dt_s):
             "system: expected an IdentifiedModel, ContinuousModel, control.StateSpace or "
             f"tuple (A, B, C, D), got {type(system).__name__}"
         )
-    A = as_matrix("A", A)
-    n = A.shape[0]
-    if A.shape != (n, n):
-        raise ValueError(f"A: expected a square matrix, got shape {A.shape}")
-    B = as_matrix("B", B, rows=n)
-    C = as_matrix("C", C, cols=n)
-    D = as_matrix("D", D, rows=C.shape[0], cols=B.shape[1])
+    A, B, C, D = state_space(A, B, C, D)
     return A, B, C, D, dt
 
 

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import as_matrix, frozen_array, positive_float
+from ._checks import frozen_array, positive_float, square_matrix
 
 __all__ = ["Modes", "modes_from_model", "continuous_poles"]
 
@@ -65,9 +65,7 @@ def _unpack(A, dt):
         if dt is None:
             dt = A.dt_s
         A = A.A
-    A = as_matrix("A", A)
-    if A.shape[0] != A.shape[1]:
-        raise ValueError(f"A: expected a square matrix, got shape {A.shape}")
+    A = square_matrix("A", A)
     if dt is not None:
         dt = positive_float("dt", dt)
     return A, dt

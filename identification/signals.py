@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal as _sig
 
-from ._checks import as_signal, frozen_array, nonneg_float, positive_float, positive_int
+from ._checks import as_signal, frozen_array, nonneg_float, positive_float, positive_int, welch_segment_length
 
 __all__ = ["prbs", "prbs_hold_samples", "paper_excitation", "Excitation", "signal_spectrum", "Spectrum"]
 
@@ -306,11 +306,7 @@ def signal_spectrum(u, *, fs: float, nperseg: int | None = None, window: str = "
     x = as_signal("u", u)
     fs = positive_float("fs", fs)
     n = x.shape[0]
-    if nperseg is None:
-        nperseg = min(n, max(256, int(round(fs))))
-    nperseg = positive_int("nperseg", nperseg, minimum=2)
-    if nperseg > n:
-        raise ValueError(f"nperseg: expected at most n_samples={n}, got {nperseg}")
+    nperseg = welch_segment_length(nperseg, n, fs)
     f, p = _sig.welch(x, fs=fs, window=window, nperseg=nperseg, axis=0)
     p = p.T
     return Spectrum(freq_hz=frozen_array(f), psd=frozen_array(p[0] if one_d else p), fs=fs, nperseg=nperseg)

@@ -60,6 +60,7 @@ from ._checks import (
     positive_float,
     positive_int,
     same_length,
+    state_space,
 )
 
 __all__ = [
@@ -542,14 +543,29 @@ def _model_matrices(model):
         raise ValueError(
             f"model: expected an IdentifiedModel (or object with A, B, C, D), got {type(model).__name__}"
         ) from None
-    A = as_matrix("model.A", A)
-    n = A.shape[0]
-    if A.shape != (n, n):
-        raise ValueError(f"model.A: expected a square matrix, got shape {A.shape}")
-    B = as_matrix("model.B", B, rows=n)
-    C = as_matrix("model.C", C, cols=n)
-    D = as_matrix("model.D", D, rows=C.shape[0], cols=B.shape[1])
-    return A, B, C, D
+    return state_space(A, B, C, D, prefix="model.")
+
+
+def _initial_state(x0, n: int) -> np.ndarray:
+    """Checked initial state of ``n`` entries (zeros when ``x0`` is None)."""
+    x = np.zeros(n) if x0 is None else as_signal("x0", x0, max_ndim=1)[:, 0]
+    if x.shape[0] != n:
+        raise ValueError(f"x0: expected shape ({n},), got ({x.shape[0]},)")
+    return x
+
+
+def _run_recursion(F, drive, x, C, D, u) -> np.ndarray:
+    """Outputs ``C x(k) + D u(k)`` of ``x(k+1) = F x(k) + drive(k)`` from ``x(0) = x``.
+
+    ``drive`` has shape ``(n_samples, n)`` and ``u`` ``(n_samples, n_inputs)``.
+    """
+    N, n = drive.shape
+    X = np.empty((N, n))
+    Ft = np.ascontiguousarray(F.T)
+    for k in range(N):
+        X[k] = x
+        x = x @ Ft + drive[k]
+    return X @ C.T + u @ D.T
 
 
 def simulate(model, u, x0=None) -> np.ndarray:
@@ -578,17 +594,8 @@ def simulate(model, u, x0=None) -> np.ndarray:
     n, m = B.shape
     if us.shape[1] != m:
         raise ValueError(f"u: expected {m} input channel(s), got {us.shape[1]}")
-    x = np.zeros(n) if x0 is None else as_signal("x0", x0, max_ndim=1)[:, 0]
-    if x.shape[0] != n:
-        raise ValueError(f"x0: expected shape ({n},), got ({x.shape[0]},)")
-    N = us.shape[0]
-    bu = us @ B.T
-    X = np.empty((N, n))
-    At = np.ascontiguousarray(A.T)
-    for k in range(N):
-        X[k] = x
-        x = x @ At + bu[k]
-    return X @ C.T + us @ D.T
+    x = _initial_state(x0, n)
+    return _run_recursion(A, us @ B.T, x, C, D, us)
 
 
 def estimate_x0(model, y, u) -> np.ndarray:
@@ -661,16 +668,8 @@ def predict(model, y, u, x0=None) -> np.ndarray:
         raise ValueError(f"y: expected {l} output channel(s), got {ys.shape[1]}")
     if us.shape[1] != m:
         raise ValueError(f"u: expected {m} input channel(s), got {us.shape[1]}")
-    x = np.zeros(n) if x0 is None else as_signal("x0", x0, max_ndim=1)[:, 0]
-    if x.shape[0] != n:
-        raise ValueError(f"x0: expected shape ({n},), got ({x.shape[0]},)")
-    N = ys.shape[0]
+    x = _initial_state(x0, n)
     # xhat(k+1) = (A - K C) xhat + (B - K D) u + K y
     Ak = A - K @ C
     drive = us @ (B - K @ D).T + ys @ K.T
-    X = np.empty((N, n))
-    At = np.ascontiguousarray(Ak.T)
-    for k in range(N):
-        X[k] = x
-        x = x @ At + drive[k]
-    return X @ C.T + us @ D.T
+    return _run_recursion(Ak, drive, x, C, D, us)

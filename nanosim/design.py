@@ -537,6 +537,12 @@ def _fmt_s(p: complex) -> str:
     return f"s = {p.real:.3g} {'+' if p.imag >= 0 else '-'} {abs(p.imag):.4g}j rad/s ({abs(p.imag) / (2 * np.pi):.4g} Hz)"
 
 
+def _feedthrough_rank(M) -> int:
+    """Numerical rank of a feedthrough block: singular values above ``sqrt(eps) * max(1, sigma_max)``."""
+    sv = np.linalg.svd(M, compute_uv=False) if M.size else np.zeros(0)
+    return int(np.sum(sv > np.sqrt(np.finfo(float).eps) * max(1.0, sv.max(initial=0.0))))
+
+
 def _on_axis(p, rtol):
     return abs(p.real) <= rtol * max(1.0, abs(p))
 
@@ -619,14 +625,12 @@ def check_assumptions(P, nmeas: int, ncon: int, *, rtol: float = 1e-10, axis_rto
                          f"imaginary-axis weight pole is never seen by the controller)."
                          + (note if _on_axis(q, axis_rtol) else ""))
     # (A2) rank of D12, D21
-    sv12 = np.linalg.svd(D12, compute_uv=False) if D12.size else np.zeros(0)
-    r12 = int(np.sum(sv12 > np.sqrt(np.finfo(float).eps) * max(1.0, sv12.max(initial=0.0))))
+    r12 = _feedthrough_rank(D12)
     if r12 < ncon:
         fails.append(f"(A2) D12 (high-frequency gain from u to z) has rank {r12} < {ncon} controls, i.e. not full "
                      f"column rank: some control direction is not penalized at high frequency. Give Wu a "
                      f"nonzero high-frequency gain (e.g. a constant such as the paper's Wu = 0.15).")
-    sv21 = np.linalg.svd(D21, compute_uv=False) if D21.size else np.zeros(0)
-    r21 = int(np.sum(sv21 > np.sqrt(np.finfo(float).eps) * max(1.0, sv21.max(initial=0.0))))
+    r21 = _feedthrough_rank(D21)
     if r21 < nmeas:
         fails.append(f"(A2) D21 (feedthrough from w to the measurements) has rank {r21} < {nmeas} measurements, "
                      f"i.e. not full row rank: every measurement must be corrupted directly by an exogenous "

@@ -335,7 +335,7 @@ def bandwidth(factory: StageFactory, controller, seed=0, duration_s=4.0, amplitu
     lvl = 1 / np.sqrt(2)
     bS = _first_crossing(fb, sS, lvl, upward=True)
     bT = _first_crossing(fb, sT, lvl, upward=False)
-    ns = int(0.15 * FS)
+    ns = int(0.3 * FS)
     sref = np.zeros((ns + int(0.01 * FS), 3))
     sref[int(0.01 * FS):, 0] = step_um
     stp = run_closed_loop(factory(seed + 1), controller, sref)

@@ -55,12 +55,15 @@ def random_system(n, m, l, seed, *, light=False, feedthrough=False, fs=FS):
     return (A, B, C, D), (E[:n, :n], E[:n, n:], C, D)
 
 
-def paper_like_plant(seed=0, fs=FS):
-    """13 states: 6 modes (175..740 Hz, damping 0.002-0.01) + creep pole at 30 rad/s; 1 input, 3 outputs."""
-    rng = np.random.default_rng(seed)
-    f = np.array([175.0, 179.0, 245.0, 460.0, 474.0, 740.0])
+def column_plant(rng, f, fs=FS):
+    """One 1-input, 3-output column: light modes at ``f`` Hz plus a creep pole at 30 rad/s (ZOH at ``fs``).
+
+    Damping ratios in [0.002, 0.01] and output couplings are drawn from
+    ``rng``.  Returns continuous (A, B, C, D), discrete (Ad, Bd, Cd, Dd) and
+    the damping ratios.
+    """
     zeta = rng.uniform(0.002, 0.01, f.size)
-    n = 13
+    n = 2 * f.size + 1
     A = np.zeros((n, n))
     B = np.zeros((n, 1))
     C = np.zeros((3, n))
@@ -70,13 +73,21 @@ def paper_like_plant(seed=0, fs=FS):
         B[2 * k + 1, 0] = w * w
         C[:, 2 * k] = rng.normal(size=3) / (k + 1)
     C[:, 0] += 1.0
-    A[12, 12], B[12, 0] = -30.0, 30.0
-    C[:, 12] = 0.15 * rng.normal(size=3)
+    A[n - 1, n - 1], B[n - 1, 0] = -30.0, 30.0
+    C[:, n - 1] = 0.15 * rng.normal(size=3)
     D = np.zeros((3, 1))
     M = np.zeros((n + 1, n + 1))
     M[:n, :n], M[:n, n:] = A, B
     E = la.expm(M / fs)
-    return (A, B, C, D), (E[:n, :n], E[:n, n:], C, D), f, zeta
+    return (A, B, C, D), (E[:n, :n], E[:n, n:], C, D), zeta
+
+
+def paper_like_plant(seed=0, fs=FS):
+    """13 states: 6 modes (175..740 Hz, damping 0.002-0.01) + creep pole at 30 rad/s; 1 input, 3 outputs."""
+    rng = np.random.default_rng(seed)
+    f = np.array([175.0, 179.0, 245.0, 460.0, 474.0, 740.0])
+    sysc, sysd, zeta = column_plant(rng, f, fs)
+    return sysc, sysd, f, zeta
 
 
 def dsim(sysd, u, x0=None):

@@ -2,25 +2,14 @@
 from __future__ import annotations
 
 import os
-import socket
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
-                 "--use-angle=swiftshader", "--disable-background-networking", "--disable-component-update",
-                 "--no-first-run", "--disable-sync"]
+from nanosim.viewer.screenshots import CHROMIUM, CHROMIUM_ARGS, free_port, wait_until
 
 pytestmark = pytest.mark.browser
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _need_chromium():
@@ -33,12 +22,7 @@ def _need_chromium():
 
 
 def _wait(cond, timeout=15.0):
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        if cond():
-            return True
-        time.sleep(0.05)
-    return False
+    return wait_until(cond, timeout, poll=0.05)
 
 
 def test_viewer_in_chromium(tmp_path):
@@ -46,7 +30,7 @@ def test_viewer_in_chromium(tmp_path):
     from nanosim.viewer.server import ViewerApp
     from PIL import Image
 
-    app = ViewerApp(port=_free_port()).start()
+    app = ViewerApp(port=free_port()).start()
     try:
         with pw.sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)

@@ -17,18 +17,20 @@ CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--enable-un
                  "--no-first-run", "--disable-sync"]
 
 
-def _free_port() -> int:
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that is free now (chosen by the OS)."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
 
-def _wait(cond, timeout=30.0):
+def wait_until(cond, timeout=30.0, poll=0.01) -> bool:
+    """Poll ``cond()`` every ``poll`` s until it is true (True) or ``timeout`` s pass (False)."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
         if cond():
             return True
-        time.sleep(0.01)
+        time.sleep(poll)
     return False
 
 
@@ -39,7 +41,7 @@ def main(outdir="docs") -> int:
 
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
-    app = ViewerApp(port=_free_port()).start()
+    app = ViewerApp(port=free_port()).start()
     try:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
@@ -47,11 +49,9 @@ def main(outdir="docs") -> int:
             page.goto(f"http://127.0.0.1:{app.port}/")
             page.wait_for_selector("canvas")
             page.get_by_role("button", name="reset").wait_for()
-            try:  # dismiss viser's "software WebGL" toast
-                page.get_by_text("Software WebGL rendering detected").wait_for(timeout=5000)
-                page.locator("[class*=Notification] button").first.click(timeout=3000)
-            except Exception:  # noqa: BLE001
-                pass
+            # hide viser's "software WebGL" toast (headless Chromium renders with SwiftShader)
+            page.add_style_tag(content="[class*='Notifications-root'], [class*='Notification-root'] "
+                                       "{display: none !important}")
             # 1. at rest
             app.set_exaggeration(1000.0)
             page.wait_for_timeout(2500)
@@ -60,7 +60,7 @@ def main(outdir="docs") -> int:
             app.set_waveform("contour", amplitude_um=20.0, speed_um_s=20.0)
             app.reset()
             app.set_exaggeration(2000.0)
-            _wait(lambda: app._snap["ref_um"][0] >= 10.0 and app._snap["t"] < 1.3)
+            wait_until(lambda: app._snap["ref_um"][0] >= 10.0 and app._snap["t"] < 1.3)
             app.paused = True
             page.wait_for_timeout(2500)
             page.screenshot(path=str(out / "viewer_contour_2000x.png"))
@@ -71,7 +71,7 @@ def main(outdir="docs") -> int:
             app._gui_mode.value = app._gui_mode.options[1]
             app.mode_index = 0
             page.wait_for_timeout(1000)
-            _wait(lambda: abs(__import__("math").sin(2 * 3.14159 * 0.5 * time.perf_counter())) > 0.97, 5)
+            wait_until(lambda: abs(__import__("math").sin(2 * 3.14159 * 0.5 * time.perf_counter())) > 0.97, 5)
             page.wait_for_timeout(150)
             page.screenshot(path=str(out / "viewer_mode1.png"))
             browser.close()

@@ -13,11 +13,12 @@ ratio measured within the run is also stored in ``extra_info`` and printed.
 """
 from __future__ import annotations
 
+import importlib.util
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.linalg as la
 import scipy.signal as ss
 
 import identification as ident
@@ -25,27 +26,21 @@ import identification as ident
 FS = 4000.0
 
 
+def _load_identification_tests():
+    """The test module tests/test_identification.py, whose plant generator the benchmark reuses."""
+    path = Path(__file__).resolve().parents[1] / "test_identification.py"
+    spec = importlib.util.spec_from_file_location("_nanosim_test_identification_for_bench", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def _column_plant(seed):
     """13-state 3x1 column: six light modes 175-740 Hz plus a 30 rad/s creep pole (ZOH, 4 kHz)."""
     rng = np.random.default_rng(seed)
     f = np.array([175.0, 179.0, 245.0, 460.0, 474.0, 740.0]) * rng.uniform(0.98, 1.02, 6)
-    zeta = rng.uniform(0.002, 0.01, 6)
-    n = 13
-    A = np.zeros((n, n))
-    B = np.zeros((n, 1))
-    C = np.zeros((3, n))
-    for k, (fk, zk) in enumerate(zip(f, zeta)):
-        w = 2 * np.pi * fk
-        A[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = [[0.0, 1.0], [-w * w, -2 * zk * w]]
-        B[2 * k + 1, 0] = w * w
-        C[:, 2 * k] = rng.normal(size=3) / (k + 1)
-    C[:, 0] += 1.0
-    A[12, 12], B[12, 0] = -30.0, 30.0
-    C[:, 12] = 0.15 * rng.normal(size=3)
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n], M[:n, n:] = A, B
-    E = la.expm(M / FS)
-    return E[:n, :n], E[:n, n:], C, np.zeros((3, 1))
+    _, sysd, _ = _load_identification_tests().column_plant(rng, f, fs=FS)
+    return sysd
 
 
 @pytest.fixture(scope="module")
