@@ -191,18 +191,52 @@ def modes_json(model: mujoco.MjModel, fmax_hz: float = 1000.0) -> dict:
     }
 
 
-def exaggerated_body_positions(model: mujoco.MjModel, shape_q: np.ndarray, scale: float) -> np.ndarray:
-    """(nbody, 3) body positions (m) with q = q_home + scale * shape (joint space, then FK)."""
+def posed_data(model: mujoco.MjModel, shape_q: np.ndarray, scale: float) -> mujoco.MjData:
+    """MjData at q = q_home + scale * shape (joint space), forward kinematics done."""
     data = home_data(model)
-    q0 = data.qpos.copy()
-    data.qpos[:] = q0 + scale * shape_q
+    data.qpos[:] = data.qpos + scale * shape_q
     mujoco.mj_kinematics(model, data)
-    return data.xpos.copy()
+    return data
+
+
+def _segments_mm(model: mujoco.MjModel, data: mujoco.MjData) -> list:
+    """Capsule/cylinder geoms of the moving mechanism as (2, 3) segments in mm."""
+    segs = []
+    lines = (int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_CYLINDER))
+    box = int(mujoco.mjtGeom.mjGEOM_BOX)
+    for g in range(model.ngeom):
+        if model.geom_bodyid[g] <= 1:
+            continue
+        c, R, size = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3), model.geom_size[g]
+        if int(model.geom_type[g]) in lines:
+            axis = R[:, 2] * size[1]
+        elif int(model.geom_type[g]) == box and size.max() > 2 * np.sort(size)[1]:
+            k = int(np.argmax(size))                  # elongated box (the levers): its long axis
+            axis = R[:, k] * size[k]
+        else:
+            continue
+        segs.append(np.stack([c - axis, c + axis]) * 1e3)
+    return segs
+
+
+def _tendons_mm(model: mujoco.MjModel, data: mujoco.MjData) -> list:
+    """Piezo tendons as (2, 3) segments in mm (first and last site of each spatial tendon)."""
+    out = []
+    for ch in ("a", "b", "c"):
+        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, n) for n in (f"{ch}_piezo_base", f"{ch}_crank_site")]
+        if min(ids) >= 0:
+            out.append(np.stack([data.site_xpos[i] for i in ids]) * 1e3)
+    return out
 
 
 def plot_mode_shapes(model: mujoco.MjModel, result: ModalResult, out_dir, fmax_hz: float = 1000.0,
-                     rotation_rad: float = 0.05) -> list:
-    """Write one PNG per physical mode below ``fmax_hz``: home (grey) vs exaggerated shape."""
+                     max_displacement_mm: float = 4.0) -> list:
+    """One PNG per physical mode below ``fmax_hz``: home (grey) vs exaggerated shape (red).
+
+    The shape is scaled in joint space so the largest body displacement is
+    ``max_displacement_mm``; links are drawn as their capsule segments and the
+    table's displacement as an arrow.
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -210,26 +244,37 @@ def plot_mode_shapes(model: mujoco.MjModel, result: ModalResult, out_dir, fmax_h
     from ._io import save_figure
 
     paths = []
-    home = exaggerated_body_positions(model, np.zeros(model.nv), 0.0) * 1e3
-    parent = model.body_parentid
+    home = posed_data(model, np.zeros(model.nv), 0.0)
+    home_segs = _segments_mm(model, home)
+    tb = model.body("table").id
     for i, mode in enumerate(result.below(fmax_hz)):
-        moved = exaggerated_body_positions(model, mode.shape_q, rotation_rad) * 1e3
-        fig = plt.figure(figsize=(6.4, 5.2))
+        disp = result.body_displacement(mode)
+        scale = max_displacement_mm * 1e-3 / max(np.abs(disp).max(), 1e-12)
+        moved = posed_data(model, mode.shape_q, scale)
+        fig = plt.figure(figsize=(7.5, 6))
         ax = fig.add_subplot(projection="3d")
-        for pos, style in ((home, dict(color="0.7", lw=1.0)), (moved, dict(color="tab:red", lw=2.0))):
-            for b in range(2, model.nbody):
-                p = parent[b]
-                if p <= 1:
-                    continue
-                ax.plot(*np.stack([pos[p], pos[b]]).T, **style)
-        tb = model.body("table").id
-        ax.scatter(*moved[tb], color="tab:orange", s=40, label="table (exaggerated)")
-        ax.scatter(*home[tb], color="0.4", s=20, label="table (home)")
+        for s in home_segs:
+            ax.plot(*s.T, color="0.75", lw=2.5)
+        for s in _segments_mm(model, moved):
+            ax.plot(*s.T, color="tab:red", lw=1.6)
+        for s in _tendons_mm(model, moved):
+            ax.plot(*s.T, color="tab:blue", lw=3, alpha=0.6)
+        p0, p1 = home.xpos[tb] * 1e3, moved.xpos[tb] * 1e3
+        ax.quiver(*p0, *(p1 - p0), color="tab:blue", lw=2, arrow_length_ratio=0.25)
+        ax.scatter(*p0, color="0.3", s=30, label="table, home")
+        ax.scatter(*p1, color="tab:blue", s=40, label="table, exaggerated")
+        lim = np.array([-50.0, 50.0])
+        ax.set_xlim(lim)
+        ax.set_ylim(lim)
+        ax.set_zlim(0, 50)
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
         ax.set_zlabel("z (mm)")
+        d = p1 - p0
         ax.set_title(f"Mode {i + 1}: {mode.freq_hz:.1f} Hz, zeta {mode.damping_ratio:.4f}, axis {mode.axis}\n"
-                     f"largest hinge rotation exaggerated to {rotation_rad:.2f} rad")
+                     f"grey: home; red: shape (blue: piezo tendons) scaled to {max_displacement_mm:g} mm largest motion; "
+                     f"table moves ({d[0]:+.1f}, {d[1]:+.1f}, {d[2]:+.1f}) mm", fontsize=9)
         ax.legend(loc="upper left", fontsize=8)
+        ax.view_init(elev=22, azim=-60)
         paths.append(save_figure(fig, f"{out_dir}/mode_{i + 1:02d}_{mode.freq_hz:.0f}Hz.png"))
     return paths
