@@ -191,3 +191,21 @@ def test_busy_port(capsys):
         rc = run_view(_args("--port", str(port)))
     err = capsys.readouterr().err.strip().splitlines()
     assert rc != 0 and len(err) == 1 and f"port {port} is busy" in err[0]
+
+
+def test_live_closed_loop_tracks_a_reference(tmp_path):
+    """The viewer's physics thread runs the H-infinity loop (controller.npz) on the stage."""
+    from nanosim._io import write_npz
+    from nanosim.design import design_hinf, discretize_controller, reduce_model
+    from nanosim.linear import linearize
+    from nanosim.stage import Stage, StageConfig
+    from nanosim.viewer.sim import LiveSim, load_controller
+
+    twin = linearize(Stage(config=StageConfig.ideal()))
+    kd = discretize_controller(design_hinf(reduce_model(twin.sys_V, order=10).G_reduced).K, dt=1 / 4000).Kd
+    path = write_npz(tmp_path / "controller.npz", Akd=kd.A, Bkd=kd.B, Ckd=kd.C, Dkd=kd.D, dt=1 / 4000)
+    sim = LiveSim(controller=load_controller(path))
+    assert sim.controller_on
+    ref = np.array([2.0, -1.0, 0.5])
+    y = np.array([sim.step(ref) for _ in range(1200)])
+    np.testing.assert_allclose(y[-200:].mean(axis=0), ref, atol=0.01)      # within 10 nm after 0.25 s
