@@ -13,7 +13,7 @@ inward, which moves the table along u_k: alpha_k = (u_k . p) / (L1 cos(eps)).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -94,13 +94,6 @@ def leg_unit_vectors() -> np.ndarray:
 
 def _v(x) -> str:
     return " ".join(f"{float(c):.9g}" for c in np.atleast_1d(x))
-
-
-@dataclass
-class _Chain:
-    name: str
-    psi_deg: float
-    lines: list[str] = field(default_factory=list)
 
 
 def _chain_geometry(p: StageParams):
@@ -187,9 +180,8 @@ def stage_xml(p: StageParams = DEFAULT_PARAMS) -> str:
     A('  </asset>')
     A('  <worldbody>')
     A('    <body name="stage" childclass="pkxyz">')
-    A(f'      <geom name="base_plate" type="cylinder" size="0.06 0.002" pos="0 0 -0.002" material="base"/>')
+    A('      <geom name="base_plate" type="cylinder" size="0.06 0.002" pos="0 0 -0.002" material="base"/>')
 
-    leg_mid = 0.5 * L2 * u
     welds = []
     tendons = []
     eqs = []
@@ -326,7 +318,6 @@ def _table_body(A, p: StageParams, ch: str, psi: float, s2: float, table_z: floa
     A(f'                  <body name="table" pos="{_v(rel_chain)}" euler="0 0 {-psi_r:.9g}">')
     hinge_world = g["top"][0] * np.array([math.cos(psi_r), math.sin(psi_r), 0.0])
     axis_world = np.array([-math.sin(psi_r), math.cos(psi_r), 0.0])
-    kf = p.chain_a_stiffness_factor
     A(f'                    <joint name="{ch}_h2" class="follower" pos="{_v(hinge_world)}" axis="{_v(axis_world)}"/>')
     A('                    <geom name="table" class="table" type="mesh" mesh="table_prism"/>')
     if p.table_extra_mass > 0:

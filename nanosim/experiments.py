@@ -9,7 +9,7 @@ closed-loop runs first ramp from the home reading to the origin and settle.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -21,7 +21,7 @@ from . import constants as C
 from .controller import DiscreteController
 from .electronics import ActuatorChain, SensorChain
 from .piezo import loop_hysteresis_percent
-from .stage import Stage, StageConfig, Trace
+from .stage import StageConfig, Trace
 
 FS = C.CONTROL_RATE_HZ
 UM_PER_V = C.SENSOR_UM_PER_V

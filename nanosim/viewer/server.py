@@ -16,7 +16,6 @@ import numpy as np
 import viser
 import viser.uplot as uplot
 
-from .. import constants as C
 from ..model import load_model
 from ..modes import modal_analysis
 from . import scene as sc
