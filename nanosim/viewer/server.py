@@ -130,9 +130,10 @@ class ViewerApp:
     def _on_connect(self, client) -> None:
         client.camera.up_direction = (0.0, 0.0, 1.0)
         # stage centre shifted right of the look-at point so the GUI panel (right) does not hide it
-        shift = np.array([0.76, 0.65, 0.0]) * 45.0
-        client.camera.position = tuple(np.array([95.0, -110.0, 85.0]) + shift)
-        client.camera.look_at = tuple(np.array([0.0, 0.0, 18.0]) + shift)
+        shift = np.array([0.76, 0.65, 0.0]) * 30.0
+        look_at = np.array([0.0, 0.0, 24.0]) + shift
+        client.camera.position = tuple(look_at + 0.62 * np.array([95.0, -110.0, 62.0]))
+        client.camera.look_at = tuple(look_at)
         client.camera.near = 1.0
         client.camera.far = 5000.0
 
