@@ -113,6 +113,14 @@ def _stage_characterize(args, out: Path) -> None:
                      twin=getattr(args, "twin", False), mjcf=args.mjcf, progress=True)
 
 
+def _stage_characterize_twin(args, out: Path) -> None:
+    """The same experiments on the linear twin (same code path), into DIR/twin/."""
+    from .characterize import run_characterize
+
+    run_characterize(out / "controller.npz", out / "twin", seed=args.seed, twin=True, mjcf=args.mjcf,
+                     progress=True)
+
+
 def _stage_report(args, out: Path) -> None:
     from .report import write_report
 
@@ -121,7 +129,8 @@ def _stage_report(args, out: Path) -> None:
 
 def _pipeline_stages():
     return [("modes", _stage_modes), ("identify", _stage_identify), ("design", _stage_design),
-            ("characterize", _stage_characterize), ("report", _stage_report)]
+            ("characterize", _stage_characterize), ("characterize_twin", _stage_characterize_twin),
+            ("report", _stage_report)]
 
 
 def _single(stage_fn):

@@ -234,7 +234,7 @@ def _bands(x_nm):
     return float(x_nm.std()), float(np.percentile(dev, 95.45)), float(np.percentile(dev, 99.73))
 
 
-def resolution(factory: StageFactory, controller, seed=0, duration_s=2.0, axis=0) -> ResolutionResult:
+def resolution(factory: StageFactory, controller, seed=0, duration_s=4.0, axis=0) -> ResolutionResult:
     n = int(duration_s * FS)
     st = factory(seed)
     st.run(np.zeros((int(0.3 * FS), 3)))

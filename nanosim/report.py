@@ -29,7 +29,7 @@ def _get(d, *keys):
     for k in keys:
         if isinstance(d, dict) and k in d:
             d = d[k]
-        elif isinstance(d, list) and isinstance(k, int) and k < len(d):
+        elif isinstance(d, list) and isinstance(k, int) and -len(d) <= k < len(d):
             d = d[k]
         else:
             return None
@@ -160,6 +160,30 @@ def _figures(run: Path):
     return out
 
 
+TWIN_KEYS = [
+    ("S bandwidth (Hz)", ("bandwidth_S_hz",)), ("T bandwidth (Hz)", ("bandwidth_T_hz",)),
+    ("2 um step overshoot (%)", ("step_2um", "overshoot_percent")),
+    ("2 um step rise (ms)", ("step_2um", "rise_ms")),
+    ("closed-loop sigma (nm)", ("resolution_sigma_nm", "closed_loop")),
+    ("open-loop hysteresis (%)", ("hysteresis", "open_loop_percent")),
+    ("closed-loop hysteresis (nm)", ("hysteresis", "closed_loop_nm")),
+    ("open-loop creep drift (nm)", ("creep", "open_loop_drift_nm")),
+    ("closed-loop creep drift (nm)", ("creep", "closed_loop_drift_nm")),
+    ("tracking rms, triangle 5 Hz (nm)", ("tracking", 0, "rms_error_nm")),
+    ("tracking rms, triangle 40 Hz (nm)", ("tracking", 3, "rms_error_nm")),
+    ("contour error at 1000 um/s, mean (nm)", ("contouring", -1, "mean_error_nm")),
+]
+
+
+def _twin_rows(run: Path):
+    """(label, MuJoCo value, linear-twin value) for the closed-loop metrics, if a twin run exists."""
+    mj, tw = _load(run, "metrics.json"), _load(run / "twin", "metrics.json")
+    if not tw:
+        return []
+
+    return [(label, _get(mj, *keys), _get(tw, *keys)) for label, keys in TWIN_KEYS]
+
+
 def write_report(run_dir) -> tuple[Path, Path]:
     """Write report.md and report.html into ``run_dir`` from its json files and figures."""
     run = Path(run_dir)
@@ -180,6 +204,13 @@ def write_report(run_dir) -> tuple[Path, Path]:
     for sec, label, p, s, u, ok, band in rows:
         mark = "" if ok is None else ("yes" if ok else "**NO**")
         md.append(f"| {sec} | {label} | {_fmt(p)} | {_fmt(s)} | {_diff(p, s)} | {u} | {band} | {mark} |")
+    twin_rows = _twin_rows(run)
+    if twin_rows:
+        md += ["", "## MuJoCo stage vs linear twin (same experiments, same code path)", "",
+               "Both plants have the same DAC, amplifier, piezo hysteresis and creep, gauge and ADC; "
+               "only the mechanics differ (MuJoCo vs the 12-state linear twin).", "",
+               "| quantity | MuJoCo | linear twin | difference |", "|---|---|---|---|"]
+        md += [f"| {lab} | {_fmt(a)} | {_fmt(b)} | {_diff(b, a)} |" for lab, a, b in twin_rows]
     md += ["", "## Figures", ""]
     figs = _figures(run)
     for title, rel in figs:
@@ -198,7 +229,15 @@ def write_report(run_dir) -> tuple[Path, Path]:
         cls = "" if ok is None else (" class='yes'" if ok else " class='no'")
         cells = [sec, label, _fmt(p), _fmt(s), _diff(p, s), u, band, "" if ok is None else ("yes" if ok else "NO")]
         h.append(f"<tr{cls}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
-    h.append("</table><h2>Figures</h2>")
+    h.append("</table>")
+    if twin_rows:
+        h.append("<h2>MuJoCo stage vs linear twin (same experiments, same code path)</h2><table>"
+                 "<tr><th>quantity</th><th>MuJoCo</th><th>linear twin</th><th>difference</th></tr>")
+        for lab, a, b in twin_rows:
+            h.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in (lab, _fmt(a), _fmt(b), _diff(b, a)))
+                     + "</tr>")
+        h.append("</table>")
+    h.append("<h2>Figures</h2>")
     for title, rel in figs:
         h.append(f"<h3>{html.escape(title)}</h3><img src='{html.escape(rel)}' alt='{html.escape(title)}'>")
     h.append("</body></html>")

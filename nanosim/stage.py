@@ -25,11 +25,11 @@ from .piezo import PiezoConfig
 
 # The bench electronics. 16-bit DAC spanning the command range [-1, 7.5] V
 # (LSB 0.13 mV). DAC noise (controller volts rms) is low-frequency (two poles
-# at 10 Hz: 1/f and reference drift dominate DAC noise); its level is
+# at 5 Hz: 1/f and reference drift dominate DAC noise); its level is
 # calibrated so the open-loop probe sigma at rest is 11.4 nm (paper Sec. 5),
 # see tests/test_stage.py.
-DAC_NOISE_V = 1.35e-3
-DAC_NOISE_CORNER_HZ = 10.0
+DAC_NOISE_V = 1.39e-3
+DAC_NOISE_CORNER_HZ = 5.0
 STAGE_ELECTRONICS = ElectronicsConfig(dac_full_scale_V=(C.COMMAND_RANGE_V[1] - C.COMMAND_RANGE_V[0]) / 2,
                                       dac_center_V=(C.COMMAND_RANGE_V[1] + C.COMMAND_RANGE_V[0]) / 2,
                                       dac_noise_V=DAC_NOISE_V, dac_noise_corner_Hz=DAC_NOISE_CORNER_HZ)

@@ -75,7 +75,8 @@ def test_pipeline_end_to_end(tmp_path):
     """The main job: modes, identify, design, characterize, report, on the bundled stage."""
     run_dir = tmp_path / "run"
     run("pipeline", "--out", str(run_dir), "--seed", "0")
-    for name in ("modes.json", "identify.json", "design.json", "metrics.json", "report.md", "report.html",
+    for name in ("modes.json", "identify.json", "design.json", "metrics.json", "twin/metrics.json", "report.md",
+                 "report.html",
                  "model.npz", "controller.npz", "fig14_hysteresis.png", "fig20_contouring.png"):
         assert (run_dir / name).is_file(), name
     ident = json.loads((run_dir / "identify.json").read_text())
@@ -89,7 +90,7 @@ def test_pipeline_end_to_end(tmp_path):
     assert m["creep"]["closed_loop_drift_nm"] < 5.0 < 50.0 < m["creep"]["open_loop_drift_nm"]
     assert m["resolution_sigma_nm"]["closed_loop"] < m["resolution_sigma_nm"]["open_loop"]
     report = (run_dir / "report.md").read_text()
-    assert "Paper vs simulation" in report and "![" in report
+    assert "Paper vs simulation" in report and "![" in report and "linear twin" in report
     shared = Path(__file__).resolve().parents[2] / "shared" / "tools" / "compare_to_paper.py"
     if shared.is_file():
         p = subprocess.run([sys.executable, str(shared), str(run_dir)], capture_output=True, text=True)
