@@ -192,11 +192,11 @@ def write_report(run_dir) -> tuple[Path, Path]:
     met = _load(run, "metrics.json")
     n_ok = sum(1 for r in rows if r[5] is True)
     n_band = sum(1 for r in rows if r[5] is not None)
-    title = "Robust Control of a Parallel-Kinematic Nanopositioner"
+    paper_title = "Robust Control of a Parallel-Kinematic Nanopositioner"
     rest = ("(J. Dyn. Sys., Meas., Control 130, 2008): MuJoCo stage -> identification -> H-infinity design -> "
             f"closed-loop experiments. Plant for Sec. 5: {met.get('plant', 'n/a')}. "
             f"{n_ok} of {n_band} checked quantities are inside their acceptance bands.")
-    md = ["# nanosim report", "", f"Simulated reproduction of *{title}* {rest}", ""]
+    md = ["# nanosim report", "", f"Simulated reproduction of *{paper_title}* {rest}", ""]
     if timing:
         md += ["Stage wall times (s): " + ", ".join(f"{k} {v}" for k, v in timing.items()), ""]
     md += ["## Paper vs simulation", "", "| section | quantity | paper | simulation | difference | unit | band | ok |",
@@ -221,7 +221,7 @@ def write_report(run_dir) -> tuple[Path, Path]:
          "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
          "tr.no{background:#fde2e2}tr.yes{background:#e6f4e6}img{max-width:100%}</style></head><body>",
          "<h1>nanosim report</h1>",
-         f"<p>Simulated reproduction of <em>{html.escape(title)}</em> {html.escape(rest)}</p>"]
+         f"<p>Simulated reproduction of <em>{html.escape(paper_title)}</em> {html.escape(rest)}</p>"]
     if timing:
         h.append("<p>Stage wall times (s): " + html.escape(", ".join(f"{k} {v}" for k, v in timing.items())) + "</p>")
     h.append("<h2>Paper vs simulation</h2><table><tr><th>section</th><th>quantity</th><th>paper</th>"
