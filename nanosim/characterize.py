@@ -1,6 +1,7 @@
 """``nanosim characterize``: run the Section 5 experiments, write metrics.json and figures."""
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -209,9 +210,77 @@ def predicted_loop(controller: DiscreteController, base: Stage, f_hz=None):
     return f, np.array(sS), np.array(sT)
 
 
+# rough cost order (longest first) so two workers finish together
+_COST_ORDER = ("creep", "contouring", "resolution", "tracking", "hysteresis", "bandwidth", "small_steps")
+
+
+def _run_experiment(name, factory, controller, seed, G0):
+    if name == "hysteresis":
+        return E.hysteresis(factory, controller, seed=seed)
+    if name == "creep":
+        return E.creep(factory, controller, G0, seed=seed)
+    if name == "resolution":
+        return E.resolution(factory, controller, seed=seed)
+    if name == "small_steps":
+        return E.small_steps(factory, controller, seed=seed)
+    if name == "bandwidth":
+        return E.bandwidth(factory, controller, seed=seed)
+    if name == "tracking":
+        return E.tracking(factory, controller, seed=seed)
+    return E.contouring(factory, controller, seed=seed)
+
+
+def _record(name, r, metrics: dict, out: Path, controller, base) -> None:
+    """Metrics and figure of one experiment (main thread: matplotlib is not thread-safe)."""
+    if name == "hysteresis":
+        metrics["hysteresis"] = {"open_loop_percent": r.open_loop_percent,
+                                 "open_loop_input_percent": r.open_loop_input_percent,
+                                 "open_loop_travel_um": r.open_travel_um.tolist(),
+                                 "closed_loop_nm": r.closed_loop_nm, "closed_loop_percent": r.closed_loop_percent,
+                                 "closed_loop_ramp_lag_nm": r.closed_ramp_lag_nm}
+        fig_hysteresis(r, out / "fig14_hysteresis.png")
+    elif name == "creep":
+        metrics["creep"] = {"open_loop_drift_nm": float(np.linalg.norm(r.open_drift_nm)),
+                            "closed_loop_drift_nm": float(np.linalg.norm(r.closed_drift_nm)),
+                            "open_loop_drift_xyz_nm": r.open_drift_nm.tolist(),
+                            "closed_loop_drift_xyz_nm": r.closed_drift_nm.tolist(), "hold_s": r.hold_s}
+        fig_creep(r, out / "fig15_creep.png")
+    elif name == "resolution":
+        metrics["resolution_sigma_nm"] = r.sigma_nm
+        metrics["resolution_2sigma_nm"] = r.band2_nm
+        metrics["resolution_3sigma_nm"] = r.band3_nm
+        fig_resolution(r, out / "fig16_resolution.png")
+    elif name == "small_steps":
+        metrics["small_steps"] = {"targets_nm": r.targets_nm.tolist(), "plateau_means_nm": r.plateau_mean_nm.tolist(),
+                                  "plateau_sigma_nm": r.plateau_sigma_nm.tolist()}
+        fig_small_steps(r, out / "fig17_small_steps.png")
+    elif name == "bandwidth":
+        metrics["bandwidth_S_hz"] = r.bandwidth_S_hz
+        metrics["bandwidth_T_hz"] = r.bandwidth_T_hz
+        metrics["step_2um"] = {"rise_ms": r.rise_ms, "peak_ms": r.peak_ms, "settling_ms": r.settling_ms,
+                               "overshoot_percent": r.overshoot_percent}
+        fig_bandwidth(r, out / "fig18_bandwidth_step.png", predicted=predicted_loop(controller, base))
+    elif name == "tracking":
+        metrics["tracking"] = [{"waveform": c.waveform, "freq_hz": c.freq_hz, "rms_error_nm": c.rms_error_nm,
+                                "max_error_nm": c.max_error_nm, "phase_lag_deg": c.phase_lag_deg} for c in r]
+        fig_tracking(r, out / "fig19_tracking.png")
+    elif name == "contouring":
+        metrics["contouring"] = [{"speed_um_s": c.speed_um_s, "mean_error_nm": c.mean_error_nm,
+                                  "max_error_nm": c.max_error_nm,
+                                  "axis_tracking_error_um": c.axis_tracking_error_um} for c in r]
+        fig_contouring(r, out / "fig20_contouring.png")
+
+
 def run_characterize(controller_path, out_dir, *, seed: int = 0, only=None, twin: bool = False, mjcf=None,
-                     progress: bool = True) -> dict:
-    """Run the experiments; write metrics.json (merged with an existing one for ``only``) and figures."""
+                     progress: bool = True, workers: int | None = None) -> dict:
+    """Run the experiments; write metrics.json (merged with an existing one for ``only``) and figures.
+
+    Experiments are independent (fresh stage and controller each), so they run
+    on ``workers`` threads (default: up to 2); MuJoCo steps without the GIL.
+    Results do not depend on the number of workers.
+    """
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
     out = Path(out_dir)
     ctrl = DiscreteController.from_npz(controller_path)
     names = list(E.EXPERIMENTS) if not only else [only]
@@ -219,67 +288,37 @@ def run_characterize(controller_path, out_dir, *, seed: int = 0, only=None, twin
     if unknown:
         raise ValueError(f"only: unknown experiment {unknown[0]!r}; expected one of {list(E.EXPERIMENTS)}")
     factory, base = make_factory(twin, mjcf=mjcf)
+    G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
     metrics: dict = {}
     prev = out / "metrics.json"
     if only and prev.is_file():
         import json
         metrics = json.loads(prev.read_text())
     timing = metrics.get("experiment_seconds", {})
+
+    def task(name):
+        controller = DiscreteController(ctrl.config)            # own state per experiment
+        t0 = time.perf_counter()
+        return name, _run_experiment(name, factory, controller, seed, G0), round(time.perf_counter() - t0, 2)
+
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(names, desc="characterize", unit="exp", file=sys.stderr)
-    for name in (bar or names):
-        if bar:
-            bar.set_postfix_str(name)
-        t0 = time.perf_counter()
-        ctrl.reset()
-        if name == "hysteresis":
-            r = E.hysteresis(factory, ctrl, seed=seed)
-            metrics["hysteresis"] = {"open_loop_percent": r.open_loop_percent,
-                                     "open_loop_input_percent": r.open_loop_input_percent,
-                                     "open_loop_travel_um": r.open_travel_um.tolist(),
-                                     "closed_loop_nm": r.closed_loop_nm, "closed_loop_percent": r.closed_loop_percent,
-                                     "closed_loop_ramp_lag_nm": r.closed_ramp_lag_nm}
-            fig_hysteresis(r, out / "fig14_hysteresis.png")
-        elif name == "creep":
-            G0 = modal_analysis(base.model).static_gain_um_per_V
-            r = E.creep(factory, ctrl, G0, seed=seed)
-            metrics["creep"] = {"open_loop_drift_nm": float(np.linalg.norm(r.open_drift_nm)),
-                                "closed_loop_drift_nm": float(np.linalg.norm(r.closed_drift_nm)),
-                                "open_loop_drift_xyz_nm": r.open_drift_nm.tolist(),
-                                "closed_loop_drift_xyz_nm": r.closed_drift_nm.tolist(), "hold_s": r.hold_s}
-            fig_creep(r, out / "fig15_creep.png")
-        elif name == "resolution":
-            r = E.resolution(factory, ctrl, seed=seed)
-            metrics["resolution_sigma_nm"] = r.sigma_nm
-            metrics["resolution_2sigma_nm"] = r.band2_nm
-            metrics["resolution_3sigma_nm"] = r.band3_nm
-            fig_resolution(r, out / "fig16_resolution.png")
-        elif name == "small_steps":
-            r = E.small_steps(factory, ctrl, seed=seed)
-            metrics["small_steps"] = {"targets_nm": r.targets_nm.tolist(), "plateau_means_nm": r.plateau_mean_nm.tolist(),
-                                      "plateau_sigma_nm": r.plateau_sigma_nm.tolist()}
-            fig_small_steps(r, out / "fig17_small_steps.png")
-        elif name == "bandwidth":
-            r = E.bandwidth(factory, ctrl, seed=seed)
-            metrics["bandwidth_S_hz"] = r.bandwidth_S_hz
-            metrics["bandwidth_T_hz"] = r.bandwidth_T_hz
-            metrics["step_2um"] = {"rise_ms": r.rise_ms, "peak_ms": r.peak_ms, "settling_ms": r.settling_ms,
-                                   "overshoot_percent": r.overshoot_percent}
-            fig_bandwidth(r, out / "fig18_bandwidth_step.png", predicted=predicted_loop(ctrl, base))
-        elif name == "tracking":
-            cases = E.tracking(factory, ctrl, seed=seed)
-            metrics["tracking"] = [{"waveform": c.waveform, "freq_hz": c.freq_hz, "rms_error_nm": c.rms_error_nm,
-                                    "max_error_nm": c.max_error_nm, "phase_lag_deg": c.phase_lag_deg} for c in cases]
-            fig_tracking(cases, out / "fig19_tracking.png")
-        elif name == "contouring":
-            cases = E.contouring(factory, ctrl, seed=seed)
-            metrics["contouring"] = [{"speed_um_s": c.speed_um_s, "mean_error_nm": c.mean_error_nm,
-                                      "max_error_nm": c.max_error_nm,
-                                      "axis_tracking_error_um": c.axis_tracking_error_um} for c in cases]
-            fig_contouring(cases, out / "fig20_contouring.png")
-        timing[name] = round(time.perf_counter() - t0, 2)
+        bar = tqdm(total=len(names), desc="characterize", unit="exp", file=sys.stderr)
+    results = {}
+    workers = workers or min(2, os.cpu_count() or 1)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(task, n) for n in sorted(names, key=_COST_ORDER.index)]
+        for fut in as_completed(futures):
+            name, r, seconds = fut.result()
+            results[name], timing[name] = r, seconds
+            if bar:
+                bar.set_postfix_str(name)
+                bar.update(1)
+    if bar:
+        bar.close()
+    for name in names:
+        _record(name, results[name], metrics, out, ctrl, base)
     metrics["experiment_seconds"] = timing
     metrics["plant"] = "linear twin (same electromechanics)" if twin else "MuJoCo stage, every effect on"
     metrics["seed"] = seed

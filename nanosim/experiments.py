@@ -374,6 +374,7 @@ def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40)
             t = np.arange(n) / FS
             ref = np.zeros((n, 3))
             ref[:, axis] = _wave(kind, f, t, amplitude_um)
+            controller.reset()
             cl = run_closed_loop(factory(seed), controller, interpolate(ref))
             keep = slice(int(1 / f * FS), n)
             e = cl.error_um[keep, axis] * 1e3
@@ -432,6 +433,7 @@ def contouring(factory: StageFactory, controller, seed=0, speeds_um_s=(10, 30, 1
     cases = []
     for v in speeds_um_s:
         ref = contour_reference(v)
+        controller.reset()
         cl = run_closed_loop(factory(seed), controller, ref)
         x, y = cl.y_um[:, 0], cl.y_um[:, 1]
         moving = (ref[:, 0] > 0.5) & (ref[:, 0] < 19.5)
