@@ -18,7 +18,9 @@ from scipy import signal
 import identification as ident
 
 from . import constants as C
+from ._ramps import raised_cosine
 from .controller import DiscreteController
+from .design import _crossing as crossing_hz
 from .electronics import ActuatorChain, SensorChain
 from .piezo import loop_hysteresis_percent
 from .stage import StageConfig, Trace
@@ -99,7 +101,7 @@ def run_closed_loop(stage, controller: DiscreteController, ref_um: np.ndarray, *
     if settle:
         n = int(settle_s * FS)
         start = y * UM_PER_V
-        w = 0.5 * (1 - np.cos(np.pi * np.minimum(np.arange(n) / (0.6 * n), 1.0)))
+        w = raised_cosine(n, 0.6)
         pre = start + w[:, None] * (ref_um[0] - start)
         for r in pre:
             y = stage.step(controller.step(r / UM_PER_V - y))
@@ -116,6 +118,12 @@ def run_closed_loop(stage, controller: DiscreteController, ref_um: np.ndarray, *
 
 
 StageFactory = Callable[[int], object]
+
+
+def _plateaus(y, dwell: int, count: int):
+    """Mean and std of the settled second half of ``count`` consecutive dwells of ``dwell`` samples."""
+    parts = [y[i * dwell + dwell // 2:(i + 1) * dwell] for i in range(count)]
+    return np.array([p.mean() for p in parts]), np.array([p.std() for p in parts])
 
 
 # -- 1. hysteresis ---------------------------------------------------------------
@@ -174,7 +182,7 @@ def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel
     sref[:, 0] = np.repeat(seq, nd)
     controller.reset()
     st = run_closed_loop(factory(seed + 2), controller, sref)
-    settled = np.array([st.y_um[i * nd + nd // 2:(i + 1) * nd, 0].mean() for i in range(len(seq))])
+    settled, _ = _plateaus(st.y_um[:, 0], nd, len(seq))
     up, down = settled[:levels], settled[levels - 1:][::-1]
     gap_nm = float(np.abs(up - down).max() * 1e3)
     return HysteresisResult(open_v=u[:, 0], open_y_um=y, open_loop_percent=out_pct, open_loop_input_percent=in_pct,
@@ -205,7 +213,7 @@ def creep(factory: StageFactory, controller, G0_um_per_V, seed=0, hold_s=10.0) -
     st = factory(seed)
     home = st.sensors.step(st.table_um).reading_um if hasattr(st, "sensors") else np.zeros(3)
     v0 = np.linalg.solve(G0_um_per_V, -home)
-    w = 0.5 * (1 - np.cos(np.pi * np.arange(n_move) / n_move))
+    w = raised_cosine(n_move)
     u = np.vstack([w[:, None] * v0, np.tile(v0, (n_hold, 1))])
     tr = st.run(u)
     y_open = tr.sensor_um[n_move:]
@@ -268,9 +276,7 @@ def small_steps(factory: StageFactory, controller, seed=0, step_nm=10.0, n_steps
     ref = np.zeros(((n_steps + 1) * nd, 3))
     ref[:, axis] = np.repeat(targets, nd) * 1e-3
     cl = run_closed_loop(factory(seed), controller, ref)
-    y = cl.y_um[:, axis] * 1e3
-    means = np.array([y[i * nd + nd // 2:(i + 1) * nd].mean() for i in range(n_steps + 1)])
-    sig = np.array([y[i * nd + nd // 2:(i + 1) * nd].std() for i in range(n_steps + 1)])
+    means, sig = _plateaus(cl.y_um[:, axis] * 1e3, nd, n_steps + 1)
     means = means - means[0]
     return SmallStepsResult(trace=cl, targets_nm=targets, plateau_mean_nm=means, plateau_sigma_nm=sig)
 
@@ -288,16 +294,6 @@ class BandwidthResult:
     peak_ms: float
     settling_ms: float
     overshoot_percent: float
-
-
-def _first_crossing(f, y, level, upward):
-    idx = np.flatnonzero((y[:-1] < level) & (y[1:] >= level)) if upward else \
-        np.flatnonzero((y[:-1] >= level) & (y[1:] < level))
-    if not len(idx):
-        return float("nan")
-    i = idx[0]
-    return float(np.exp(np.interp(level, [y[i], y[i + 1]] if upward else [y[i + 1], y[i]],
-                                  np.log([f[i], f[i + 1]] if upward else [f[i + 1], f[i]]))))
 
 
 def step_metrics(t_s, y, final):
@@ -333,8 +329,8 @@ def bandwidth(factory: StageFactory, controller, seed=0, duration_s=4.0, amplitu
     sS = np.linalg.svd(S, compute_uv=False)[:, 0]
     fb = f[band]
     lvl = 1 / np.sqrt(2)
-    bS = _first_crossing(fb, sS, lvl, upward=True)
-    bT = _first_crossing(fb, sT, lvl, upward=False)
+    bS = crossing_hz(fb, sS, lvl, rising=True)
+    bT = crossing_hz(fb, sT, lvl, rising=False)
     ns = int(0.3 * FS)
     sref = np.zeros((ns + int(0.01 * FS), 3))
     sref[int(0.01 * FS):, 0] = step_um

@@ -18,6 +18,7 @@ import identification as ident
 
 from . import constants as C
 from ._io import save_figure, write_json, write_npz
+from ._ramps import raised_cosine
 from .stage import StageConfig, Trace, run_open_loop_batch
 
 AXES, ACTS = C.AXES, C.ACTUATORS
@@ -57,7 +58,7 @@ def _experiment_inputs(settings: IdentifySettings, seed_offset: int):
     ex = ident.paper_excitation(fs=C.CONTROL_RATE_HZ, amplitude=settings.amplitude_V,
                                 seed=settings.seed * 1000 + seed_offset)
     n_settle = int(settings.settle_s * C.CONTROL_RATE_HZ)
-    ramp = settings.offset_V * 0.5 * (1 - np.cos(np.pi * np.minimum(np.arange(n_settle) / (0.5 * n_settle), 1)))
+    ramp = settings.offset_V * raised_cosine(n_settle, 0.5)
     cmds = np.zeros((3, n_settle + len(ex.u), 3))
     for j in range(3):
         cmds[j, :n_settle, :] = ramp[:, None]

@@ -15,8 +15,8 @@ import mujoco
 import numpy as np
 
 from . import constants as C
+from ._ramps import raised_cosine
 from .mechanics import home_data, mechanical_matrices
-from .model import custom_numeric
 
 CONSTRAINT_RATIO = 0.05
 
@@ -145,17 +145,6 @@ def modal_analysis(model: mujoco.MjModel) -> ModalResult:
                        body_names=tuple(names), body_jacobians=np.array(jacs))
 
 
-def probe_readings_um(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
-    """Probe readings (um) from the framepos sensors, zeroed as in the MJCF custom data."""
-    gap = custom_numeric(model, "probe_gap_m", 0.0)[0]
-    offset = custom_numeric(model, "probe_zero_offset_m", [0.0, 0.0, 0.0])
-    out = np.empty(3)
-    for i, ax in enumerate("xyz"):
-        adr = model.sensor_adr[model.sensor(f"probe_{ax}").id]
-        out[i] = data.sensordata[adr + i] + gap - offset[i]
-    return out * 1e6
-
-
 def constraint_violation_ratio(model: mujoco.MjModel, volts=(7.5, -1.0, -1.0), settle_s: float = 0.15) -> float:
     """Closure violation at full stroke relative to the table displacement.
 
@@ -166,7 +155,7 @@ def constraint_violation_ratio(model: mujoco.MjModel, volts=(7.5, -1.0, -1.0), s
     data = home_data(model)
     x0 = data.site("table_center").xpos.copy()
     n = int(round(settle_s / model.opt.timestep))
-    ramp = 0.5 * (1 - np.cos(np.pi * np.minimum(np.arange(n) / (0.5 * n), 1.0)))
+    ramp = raised_cosine(n, 0.5)
     force = np.asarray(volts) * volts_to_force_N()
     for k in range(n):
         data.ctrl[:] = ramp[k] * force

@@ -102,7 +102,6 @@ class Stage:
                               - custom_numeric(self.model, "probe_zero_offset_m", [0, 0, 0]))
         self._force_per_V = float(custom_numeric(self.model, "piezo_force_per_volt_N",
                                                  C.PIEZO_FORCE_PER_PIEZO_V)[0])
-        self.data = home_data(self.model)
         self.reset()
 
     # -- state -------------------------------------------------------------
@@ -141,15 +140,13 @@ class Stage:
         act = self.actuators.run(u)
         table = _rollout(self.model, [self.data], self.data, self._force_per_V * act.v_free_V[None],
                          self.substeps, self._probe_adr, self._probe_bias_m)[0]
-        sens = self.sensors.run(table)
         n = len(u)
         t = self.time_s + self.dt_s * np.arange(1, n + 1)
         self.time_s = float(t[-1]) if n else self.time_s
         if n:
             self.table_um = table[-1]
             self.last_piezo_V = act.v_piezo_V[-1]
-        return Trace(t_s=t, u_V=u, piezo_V=act.v_piezo_V, saturated=act.saturated, table_um=table,
-                     sensor_V=sens.reading_V, sensor_um=sens.reading_um, clipped=sens.clipped)
+        return _trace(t, u, act, table, self.sensors)
 
 
 _CHUNK = 1000  # control periods per rollout call (bounds memory: states are per substep)
@@ -204,7 +201,12 @@ def run_open_loop_batch(u_batch, *, seeds, config: StageConfig | None = None, mj
     traces = []
     t = st0.dt_s * np.arange(1, u.shape[1] + 1)
     for st, ui, a, tb in zip(stages, u, acts, table):
-        sens = st.sensors.run(tb)
-        traces.append(Trace(t_s=t, u_V=ui, piezo_V=a.v_piezo_V, saturated=a.saturated, table_um=tb,
-                            sensor_V=sens.reading_V, sensor_um=sens.reading_um, clipped=sens.clipped))
+        traces.append(_trace(t, ui, a, tb, st.sensors))
     return traces
+
+
+def _trace(t, u, act, table_um, sensors: SensorChain) -> Trace:
+    """Record of an open-loop run: actuator-chain output, table motion, and the sensor chain's readings."""
+    sens = sensors.run(table_um)
+    return Trace(t_s=t, u_V=u, piezo_V=act.v_piezo_V, saturated=act.saturated, table_um=table_um,
+                 sensor_V=sens.reading_V, sensor_um=sens.reading_um, clipped=sens.clipped)

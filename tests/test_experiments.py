@@ -31,7 +31,7 @@ def test_first_crossing_of_first_order_sensitivity():
     f = np.logspace(0, 3, 2000)
     fb = 30.0
     sS = np.abs(1j * f / fb / (1 + 1j * f / fb))              # S = s / (s + wb): -3 dB at fb
-    assert_allclose(E._first_crossing(f, sS, 1 / np.sqrt(2), upward=True), fb, rtol=2e-3)
+    assert_allclose(E.crossing_hz(f, sS, 1 / np.sqrt(2), rising=True), fb, rtol=2e-3)
 
 
 def test_contour_reference_is_the_45_degree_line_at_the_given_speed():
