@@ -123,3 +123,19 @@ def custom_numeric(model: mujoco.MjModel, name: str, default) -> np.ndarray:
         return np.atleast_1d(np.asarray(default, dtype=float))
     adr, size = model.numeric_adr[nid], model.numeric_size[nid]
     return model.numeric_data[adr:adr + size].copy()
+
+
+def probe_layout(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """Sensordata addresses of the X, Y, Z probe-axis components and the bias (m) added to them.
+
+    reading = framepos component + gap - zero offset (``<custom>`` numerics of the MJCF).
+    """
+    adr = np.array([model.sensor_adr[model.sensor(f"probe_{a}").id] + i for i, a in enumerate("xyz")])
+    bias = custom_numeric(model, "probe_gap_m", 0.0)[0] - custom_numeric(model, "probe_zero_offset_m", [0, 0, 0])
+    return adr, bias
+
+
+def probe_readings_um(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """Noise-free probe readings (um) of ``data``'s current sensordata."""
+    adr, bias = probe_layout(model)
+    return (data.sensordata[adr] + bias) * 1e6

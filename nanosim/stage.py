@@ -19,7 +19,7 @@ from . import constants as C
 from ._validate import as_finite_array
 from .electronics import ActuatorChain, ElectronicsConfig, SensorChain
 from .mechanics import home_data
-from .model import custom_numeric, load_model
+from .model import custom_numeric, load_model, probe_layout
 from .piezo import PiezoConfig
 
 
@@ -96,10 +96,7 @@ class Stage:
         if abs(ratio - self.substeps) > 1e-9 * ratio:
             raise ValueError(f"mjcf: timestep {self.model.opt.timestep} s must divide the control period "
                              f"{self.dt_s} s evenly")
-        self._probe_adr = np.array([self.model.sensor_adr[self.model.sensor(f"probe_{a}").id] + i
-                                    for i, a in enumerate("xyz")])
-        self._probe_bias_m = (custom_numeric(self.model, "probe_gap_m", 0.0)[0]
-                              - custom_numeric(self.model, "probe_zero_offset_m", [0, 0, 0]))
+        self._probe_adr, self._probe_bias_m = probe_layout(self.model)
         self._force_per_V = float(custom_numeric(self.model, "piezo_force_per_volt_N",
                                                  C.PIEZO_FORCE_PER_PIEZO_V)[0])
         self.reset()

@@ -14,7 +14,8 @@ import numpy as np
 from .. import constants as C
 from ..mechanics import home_data
 from ..model import load_model
-from ..modes import modal_analysis, probe_readings_um, volts_to_force_N
+from ..model import probe_readings_um
+from ..modes import modal_analysis, volts_to_force_N
 
 try:  # the stage simulator (electronics, piezo hysteresis, noise)
     from ..stage import Stage, StageConfig
