@@ -204,9 +204,11 @@ def predicted_loop(controller: DiscreteController, base: Stage, f_hz=None):
     for zz in z:
         Gz = G(zz)
         Kz = c.Ckd @ np.linalg.solve(zz * np.eye(len(c.Akd)) - c.Akd, c.Bkd) + c.Dkd
-        S = np.linalg.inv(np.eye(3) + Gz @ Kz)
-        sS.append(np.linalg.svd(S, compute_uv=False)[0])
-        sT.append(np.linalg.svd(np.eye(3) - S, compute_uv=False)[0])
+        Ke, Ky = Kz[:, :c.n_error], Kz[:, c.n_error:]         # u = Ke e + Ky y (Ky empty for 1-DOF)
+        K_fb = Ke - Ky if Ky.size else Ke
+        T = np.linalg.solve(np.eye(3) + Gz @ K_fb, Gz @ Ke)   # r -> y
+        sS.append(np.linalg.svd(np.eye(3) - T, compute_uv=False)[0])
+        sT.append(np.linalg.svd(T, compute_uv=False)[0])
     return f, np.array(sS), np.array(sT)
 
 

@@ -13,6 +13,15 @@ piezo amplifier; the paper's command range is -1 ... 7.5 V, see
 plant/simulator owns actuator limits. Sign convention: negative feedback,
 ``e = r - y``, ``u = +K e`` (see :mod:`nanosim.design`).
 
+Two-degree-of-freedom controllers (an H-infinity tracking loop around an
+active-damping loop, ``nanosim.design.DampingLoop``) have ``n_error`` error
+inputs followed by ``n_in - n_error`` measurement inputs ``y`` [sensor V]::
+
+    u[k] = Ckd x[k] + Dkd [e[k]; y[k]],   e = r - y
+
+and are stepped with ``step(e, y)``. ``n_error`` is stored in
+``controller.npz``; files without it are one-degree-of-freedom.
+
 The controller is pure numpy: ``[x[k+1]; u[k]] = M @ [x[k]; e[k]]`` with the
 stacked matrix ``M = [[Akd, Bkd], [Ckd, Dkd]]`` precomputed, one matrix-vector
 product per step.
@@ -30,6 +39,7 @@ from nanosim import _io
 __all__ = ["ControllerConfig", "DiscreteController"]
 
 _REQUIRED = ("Akd", "Bkd", "Ckd", "Dkd", "dt")
+_OPTIONAL = ("n_error",)
 
 
 def _readonly(a) -> np.ndarray:
@@ -46,12 +56,16 @@ class ControllerConfig:
     ----------
     Akd : ndarray, shape (n, n)
     Bkd : ndarray, shape (n, n_in)
-        ``n_in`` = number of error channels (3: X, Y, Z) [sensor V].
+        ``n_in`` = error channels (3: X, Y, Z) [sensor V], followed by the
+        measurement channels of a two-degree-of-freedom controller.
     Ckd : ndarray, shape (n_out, n)
         ``n_out`` = number of commands (3: A, B, C) [controller V].
     Dkd : ndarray, shape (n_out, n_in)
     dt : float
         Sample time [s] (1/4000 for the paper's controller).
+    n_error : int or None
+        Number of error inputs ``e = r - y``; the remaining ``n_in - n_error``
+        inputs take the measurement ``y`` [sensor V]. ``None``: all inputs are errors.
     """
 
     Akd: np.ndarray
@@ -59,6 +73,7 @@ class ControllerConfig:
     Ckd: np.ndarray
     Dkd: np.ndarray
     dt: float
+    n_error: int | None = None
 
     def __post_init__(self):
         mats = {}
@@ -88,6 +103,16 @@ class ControllerConfig:
         for k, a in mats.items():
             object.__setattr__(self, k, _readonly(a))
         object.__setattr__(self, "dt", float(dt.ravel()[0]))
+        nin = B.shape[1]
+        ne = nin if self.n_error is None else self.n_error
+        try:
+            ne_i = int(np.asarray(ne).ravel()[0])
+        except (TypeError, ValueError, IndexError):
+            raise ValueError(f"n_error: expected an integer, got {self.n_error!r}") from None
+        if ne_i != float(np.asarray(ne).ravel()[0]) or not 1 <= ne_i <= nin or (ne_i != nin and nin - ne_i != ne_i):
+            raise ValueError(f"n_error: expected {nin} (errors only) or {nin // 2} (errors then measurements), "
+                             f"got {self.n_error!r}")
+        object.__setattr__(self, "n_error", ne_i)
 
     @property
     def n_states(self) -> int:
@@ -96,6 +121,11 @@ class ControllerConfig:
     @property
     def n_in(self) -> int:
         return self.Bkd.shape[1]
+
+    @property
+    def n_measurement(self) -> int:
+        """Measurement inputs of a two-degree-of-freedom controller (0 otherwise)."""
+        return self.n_in - self.n_error
 
     @property
     def n_out(self) -> int:
@@ -121,23 +151,24 @@ class DiscreteController:
     >>> u = ctrl.step(r - y)     # sensor V in, controller V out      # doctest: +SKIP
     """
 
-    __slots__ = ("config", "_M", "_xe", "_n", "_nin", "_out")
+    __slots__ = ("config", "_M", "_xe", "_n", "_nin", "_ne", "_out")
 
     def __init__(self, config: ControllerConfig):
         if not isinstance(config, ControllerConfig):
             raise ValueError(f"config: expected a ControllerConfig, got {type(config).__name__}")
         self.config = config
         n, nin = config.n_states, config.n_in
-        self._n, self._nin = n, nin
+        self._n, self._nin, self._ne = n, nin, config.n_error
         self._M = np.ascontiguousarray(np.block([[config.Akd, config.Bkd], [config.Ckd, config.Dkd]]))
         self._xe = np.zeros(n + nin)          # [x; e] work vector
         self._out = np.empty(n + config.n_out)
 
     # --- construction ------------------------------------------------------------
     @classmethod
-    def from_matrices(cls, Akd, Bkd, Ckd, Dkd, dt: float) -> "DiscreteController":
-        """Build from the four discrete matrices and the sample time [s]."""
-        return cls(ControllerConfig(Akd, Bkd, Ckd, Dkd, dt))
+    def from_matrices(cls, Akd, Bkd, Ckd, Dkd, dt: float, n_error: int | None = None) -> "DiscreteController":
+        """Build from the four discrete matrices and the sample time [s]
+        (``n_error``: see :class:`ControllerConfig`)."""
+        return cls(ControllerConfig(Akd, Bkd, Ckd, Dkd, dt, n_error))
 
     @classmethod
     def from_npz(cls, path: str | os.PathLike) -> "DiscreteController":
@@ -152,8 +183,9 @@ class DiscreteController:
         """
         path = Path(path)
         data = _io.load_npz(path, required=_REQUIRED)
+        extra = {k: data[k] for k in _OPTIONAL if k in data}
         try:
-            return cls(ControllerConfig(*(data[k] for k in _REQUIRED)))
+            return cls(ControllerConfig(*(data[k] for k in _REQUIRED), **extra))
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
 
@@ -163,8 +195,27 @@ class DiscreteController:
         """Copy of the controller state ``x`` (shape ``(n_states,)``)."""
         return self._xe[: self._n].copy()
 
-    def reset(self, x0=None) -> None:
-        """Set the state to zero (or to ``x0``, shape ``(n_states,)``)."""
+    @property
+    def two_dof(self) -> bool:
+        """True if :meth:`step` also needs the measurement ``y``."""
+        return self._nin > self._ne
+
+    def reset(self, x0=None, *, measurement_V=None) -> None:
+        """Set the state to zero (or to ``x0``, shape ``(n_states,)``).
+
+        With ``measurement_V`` (two-degree-of-freedom controllers only) the state
+        is the equilibrium for zero error and a constant measurement
+        ``y = measurement_V`` [sensor V], so that starting at a non-zero reading
+        gives no transient: ``x = (I - Akd)^-1 Bkd [0; y]``.
+        """
+        if measurement_V is not None:
+            if x0 is not None:
+                raise ValueError("reset: give x0 or measurement_V, not both")
+            if not self.two_dof:
+                raise ValueError("measurement_V: this controller has no measurement inputs")
+            y = self._check("measurement_V", measurement_V, self._nin - self._ne)
+            c = self.config
+            x0 = np.linalg.solve(np.eye(self._n) - c.Akd, c.Bkd[:, self._ne:] @ y) if self._n else np.zeros(0)
         if x0 is None:
             self._xe[:] = 0.0
             return
@@ -175,40 +226,57 @@ class DiscreteController:
         self._xe[self._n:] = 0.0
 
     # --- stepping ----------------------------------------------------------------------
-    def step(self, error_V) -> np.ndarray:
+    @staticmethod
+    def _check(name, value, n) -> np.ndarray:
+        v = np.asarray(value, dtype=float)
+        if v.shape != (n,):
+            raise ValueError(f"{name}: expected shape ({n},), got {v.shape}")
+        if not np.isfinite(v).all():
+            raise ValueError(f"{name}: contains NaN/inf")
+        return v
+
+    def step(self, error_V, measurement_V=None) -> np.ndarray:
         """Advance one sample.
 
         Parameters
         ----------
-        error_V : array_like, shape (n_in,)
+        error_V : array_like, shape (n_error,)
             Tracking error ``r - y`` at sample k [sensor V] (X, Y, Z).
+        measurement_V : array_like, shape (n_measurement,), optional
+            Measured output ``y`` at sample k [sensor V]; required by (and only
+            accepted for) two-degree-of-freedom controllers.
 
         Returns
         -------
         ndarray, shape (n_out,)
             Command ``u[k]`` [controller V] (A, B, C); the state advances to k+1.
         """
-        e = np.asarray(error_V, dtype=float)
-        if e.shape != (self._nin,):
-            raise ValueError(f"error_V: expected shape ({self._nin},), got {e.shape}")
-        if not np.isfinite(e).all():
-            raise ValueError("error_V: contains NaN/inf")
+        e = self._check("error_V", error_V, self._ne)
         xe = self._xe
         n = self._n
-        xe[n:] = e
+        if self._nin > self._ne:
+            if measurement_V is None:
+                raise ValueError("measurement_V: this controller has an active-damping loop; pass the measured "
+                                 f"output y ({self._nin - self._ne} values, sensor V) as well as the error")
+            xe[n + self._ne:] = self._check("measurement_V", measurement_V, self._nin - self._ne)
+        elif measurement_V is not None:
+            raise ValueError("measurement_V: this controller takes the error only")
+        xe[n:n + self._ne] = e
         np.dot(self._M, xe, out=self._out)
         xe[:n] = self._out[:n]
         return self._out[n:].copy()
 
-    def run(self, error_seq, reset: bool = True) -> np.ndarray:
+    def run(self, error_seq, reset: bool = True, measurement_seq=None) -> np.ndarray:
         """Apply :meth:`step` to a whole sequence.
 
         Parameters
         ----------
-        error_seq : array_like, shape (N, n_in)
+        error_seq : array_like, shape (N, n_error)
             Errors [sensor V], one row per sample.
         reset : bool, default True
             Start from the zero state (otherwise continue from the current one).
+        measurement_seq : array_like, shape (N, n_measurement), optional
+            Measurements [sensor V] for a two-degree-of-freedom controller.
 
         Returns
         -------
@@ -216,10 +284,20 @@ class DiscreteController:
             Commands [controller V]. The state is left at sample N.
         """
         E = np.asarray(error_seq, dtype=float)
-        if E.ndim != 2 or E.shape[1] != self._nin:
-            raise ValueError(f"error_seq: expected shape (N, {self._nin}), got {E.shape}")
+        if E.ndim != 2 or E.shape[1] != self._ne:
+            raise ValueError(f"error_seq: expected shape (N, {self._ne}), got {E.shape}")
         if not np.isfinite(E).all():
             raise ValueError("error_seq: contains NaN/inf")
+        if self.two_dof:
+            if measurement_seq is None:
+                raise ValueError("measurement_seq: this controller has an active-damping loop; pass y as well")
+            Y = np.asarray(measurement_seq, dtype=float)
+            if Y.shape != (E.shape[0], self._nin - self._ne) or not np.isfinite(Y).all():
+                raise ValueError(f"measurement_seq: expected finite shape ({E.shape[0]}, {self._nin - self._ne}), "
+                                 f"got {Y.shape}")
+            E = np.hstack([E, Y])
+        elif measurement_seq is not None:
+            raise ValueError("measurement_seq: this controller takes the error only")
         if reset:
             self.reset()
         n, M = self._n, self._M
@@ -235,5 +313,6 @@ class DiscreteController:
 
     def __repr__(self) -> str:
         c = self.config
-        return (f"DiscreteController(n_states={c.n_states}, n_in={c.n_in}, n_out={c.n_out}, "
+        return (f"DiscreteController(n_states={c.n_states}, n_error={c.n_error}, n_measurement={c.n_measurement}, "
+                f"n_out={c.n_out}, "
                 f"dt={c.dt:g} s, spectral_radius={c.spectral_radius:.6f})")

@@ -11,6 +11,9 @@ Pipeline (paper = DOI 10.1115/1.2936861, Sec. 4.1-4.2, Appendix B):
    (``control.augw`` + ``control.hinfsyn`` = ``control.mixsyn``) with the weights
    of :mod:`nanosim.weights`; the generalized plant is checked first by
    :func:`check_assumptions` (paper Figs. 11-13, 21-22).
+3b. :func:`damping_loop` (optional, beyond the paper) -- an inner active-damping
+   loop for the lightly damped first modes; the H-infinity design is then done
+   on the damped plant (two-degree-of-freedom controller, see below).
 4. :func:`discretize_controller` -- 4 kHz discrete controller and its
    frequency-response error below 500 Hz.
 5. :func:`run_design` -- all of the above from ``model.npz``, writing
@@ -31,6 +34,20 @@ Negative feedback: ``e = r - y``, ``u = +K e``, ``L = G K``,
 ``KS = K (I + G K)^-1`` (r -> u). The controller returned by
 ``control.hinfsyn``/``mixsyn`` for the ``augw`` plant is used with exactly this
 sign (its measured signal is ``v = r - G u = e``).
+
+Active damping (two degrees of freedom)
+---------------------------------------
+A mixed-sensitivity S/KS/T design inverts the plant: its controller has
+zeros on the lightly damped plant poles (176/178 Hz, zeta ~ 0.004), so the
+closed loop keeps them with their open-loop damping. Any input disturbance
+there (the piezo's hysteresis, DAC noise) then rings for ``1/(zeta w)`` ~ 0.25 s.
+With ``damping`` the loop is ``u = K e + Ky y``: ``Ky`` is a band-limited
+velocity feedback (:func:`damping_loop`) closed first, ``Gd = (I - G Ky)^-1 G``,
+and ``K`` is the H-infinity controller for ``Gd`` with the same weights. Then
+``r -> y`` is exactly ``T = Gd K (I + Gd K)^-1`` and ``r -> e`` is
+``S = (I + Gd K)^-1``, so every weight bound of the design holds for the
+tracking loop; the feedback operator is ``K - Ky`` (``u = K r - (K - Ky) y``).
+The reference never passes through ``Ky`` (no derivative kick on steps).
 """
 from __future__ import annotations
 
@@ -57,6 +74,7 @@ __all__ = [
     "Reduction", "reduce_model", "multiplicative_uncertainty",
     "AssumptionReport", "check_assumptions", "generalized_plant",
     "Design", "design_hinf", "loop_functions",
+    "DampingLoop", "damping_loop", "damped_plant",
     "Discretization", "discretize_controller", "discretization_error",
     "discrete_closed_loop", "run_design",
     "plot_hankel", "plot_reduction_bode", "plot_uncertainty", "plot_weights",
@@ -680,6 +698,121 @@ def generalized_plant(G, weights: Weights | Mapping | str | os.PathLike | None =
 
 
 # =====================================================================================
+# active damping (inner loop)
+# =====================================================================================
+@dataclass(frozen=True, eq=False)
+class DampingLoop:
+    """Inner active-damping loop ``u = Ky y`` (positive-feedback convention).
+
+    ``Ky(s) = -c s wf^2 / (s^2 + 2 zeta_f wf s + wf^2) * G(0)^-1``: velocity
+    feedback in decoupled (sensor) coordinates, low-passed at ``lowpass_hz``.
+    For a mode ``G0 w1^2 / (s^2 + 2 zeta w1 s + w1^2)`` the feedback
+    ``-c s`` adds ``c w1 / 2`` to its damping ratio (``s^2 + (2 zeta w1 + c w1^2) s
+    + w1^2``), so ``c = 2 zeta_added / w1``. The low-pass lag (90 deg at
+    ``lowpass_hz``) turns the feedback of the non-collocated second mode set
+    (460-475 Hz) from destabilizing into damping. ``Ky(0) = 0``: no effect on
+    static gain or creep.
+
+    Attributes
+    ----------
+    Ky : control.StateSpace
+        ``ny -> nu``, sensor V -> controller V.
+    zeta_added : float
+        Damping ratio added to the first mode (design value, dimensionless).
+    mode_hz : float
+        First lightly damped plant mode the gain is scaled for [Hz].
+    lowpass_hz, lowpass_zeta : float
+        Second-order low-pass corner [Hz] and its damping ratio.
+    gain_c_s : float
+        ``c`` in ``-c s`` [s].
+    """
+
+    Ky: Any
+    zeta_added: float
+    mode_hz: float
+    lowpass_hz: float
+    lowpass_zeta: float
+    gain_c_s: float
+
+    def to_dict(self) -> dict:
+        return {"type": "band-limited velocity feedback, u = Ky y, Ky = -c s wf^2/(s^2 + 2 zf wf s + wf^2) G(0)^-1",
+                "zeta_added": self.zeta_added, "mode_hz": self.mode_hz, "lowpass_hz": self.lowpass_hz,
+                "lowpass_zeta": self.lowpass_zeta, "gain_c_s": self.gain_c_s}
+
+
+def _first_lightly_damped_hz(G, zeta_max: float = 0.05, f_min_hz: float = 20.0) -> float:
+    p = np.linalg.eigvals(np.asarray(G.A, float)) if G.nstates else np.array([])
+    w = np.abs(p)
+    ok = (p.imag > 0) & (w > 2 * np.pi * f_min_hz) & (-p.real < zeta_max * w)
+    if not np.any(ok):
+        raise ValueError(f"G: no lightly damped mode (zeta < {zeta_max}) above {f_min_hz} Hz to damp")
+    return float(w[ok].min() / (2 * np.pi))
+
+
+def damping_loop(G, zeta_added: float = 0.1, *, mode_hz: float | None = None, lowpass_hz: float = 400.0,
+                 lowpass_zeta: float = 0.7) -> DampingLoop:
+    """Band-limited velocity feedback that damps the first plant modes.
+
+    Parameters
+    ----------
+    G : control.StateSpace
+        Plant (controller V -> sensor V), square, stable DC gain.
+    zeta_added : float, default 0.1
+        Damping ratio to add to the first mode (> 0, <= 0.5).
+    mode_hz : float, optional
+        First mode [Hz]; default the lowest pole of ``G`` above 20 Hz with ``zeta < 0.05``.
+    lowpass_hz : float, default 400
+        Low-pass corner [Hz] (between the first and the second mode set).
+    lowpass_zeta : float, default 0.7
+
+    Returns
+    -------
+    DampingLoop
+    """
+    ct = _ct()
+    G = _as_ss("G", G)
+    if G.noutputs != G.ninputs:
+        raise ValueError(f"G: expected a square plant, got {G.noutputs}x{G.ninputs}")
+    for nm, v, lo, hi in (("zeta_added", zeta_added, 0.0, 0.5), ("lowpass_hz", lowpass_hz, 0.0, np.inf),
+                          ("lowpass_zeta", lowpass_zeta, 0.0, 2.0)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and lo < v <= hi):
+            raise ValueError(f"{nm}: expected a number in ({lo}, {hi}], got {v!r}")
+    f1 = _first_lightly_damped_hz(G) if mode_hz is None else float(mode_hz)
+    if not (math.isfinite(f1) and f1 > 0):
+        raise ValueError(f"mode_hz: expected a positive frequency in Hz, got {mode_hz!r}")
+    G0 = _dc_gain(G)
+    if np.linalg.cond(G0) > 1e8:
+        raise ValueError(f"G: DC gain is singular (condition number {np.linalg.cond(G0):.3g}); cannot decouple")
+    w1, wf = 2 * np.pi * f1, 2 * np.pi * float(lowpass_hz)
+    c = 2.0 * float(zeta_added) / w1
+    n = G.noutputs
+    Af = np.array([[0.0, 1.0], [-wf * wf, -2 * lowpass_zeta * wf]])     # x1' = x2; F = wf^2 x1 / ...
+    A = np.kron(np.eye(n), Af)
+    B = np.kron(np.eye(n), np.array([[0.0], [1.0]]))
+    Cv = np.kron(np.eye(n), np.array([[0.0, -c * wf * wf]]))           # -c s wf^2 / (...)
+    Ky = ct.ss(A, B, np.linalg.inv(G0) @ Cv, np.zeros((n, n)))
+    return DampingLoop(Ky=Ky, zeta_added=float(zeta_added), mode_hz=f1, lowpass_hz=float(lowpass_hz),
+                       lowpass_zeta=float(lowpass_zeta), gain_c_s=float(c))
+
+
+def damped_plant(G, damping: DampingLoop | None):
+    """``Gd = (I - G Ky)^-1 G``: the plant seen by the outer loop (``G`` if no damping)."""
+    if damping is None or G is None:
+        return G
+    ct = _ct()
+    G = _as_ss("G", G)
+    Gd = ct.feedback(G, damping.Ky, sign=+1)
+    Gd = ct.ss(np.asarray(Gd.A), np.asarray(Gd.B), np.asarray(Gd.C), np.asarray(Gd.D))
+    if _max_real_pole(G.A) < 0 <= _max_real_pole(Gd.A):
+        p = np.linalg.eigvals(np.asarray(Gd.A))
+        bad = p[(p.real >= 0) & (p.imag >= 0)]
+        raise ValueError(f"damping loop: it destabilizes the plant (closed-loop poles at "
+                         f"{', '.join(f'{abs(q) / (2 * np.pi):.1f} Hz' for q in bad)}); the low-pass at "
+                         f"{damping.lowpass_hz:g} Hz gives the wrong phase there -- move lowpass_hz or lower zeta_added")
+    return Gd
+
+
+# =====================================================================================
 # loop functions and the Design result
 # =====================================================================================
 def loop_functions(G, K):
@@ -729,6 +862,9 @@ class LoopAnalysis:
         All singular values on ``Design.freq_hz``.
     T_f : ndarray, complex, shape (F, ny, ny)
         ``T(j 2 pi f)`` on the grid (for Bode plots).
+    min_damping, min_damping_hz : float
+        Smallest damping ratio ``-Re p / |p|`` of the closed-loop poles between
+        ``MODE_BAND_HZ`` and its frequency [Hz] (how long a disturbance rings).
     """
 
     stable: bool
@@ -742,12 +878,29 @@ class LoopAnalysis:
     sigma_T: np.ndarray
     sigma_KS: np.ndarray
     T_f: np.ndarray
+    min_damping: float = float("nan")
+    min_damping_hz: float = float("nan")
+
+
+MODE_BAND_HZ = (50.0, 1000.0)
+
+
+def _min_damping(A, band_hz=MODE_BAND_HZ) -> tuple[float, float]:
+    p = np.linalg.eigvals(np.asarray(A, float)) if np.size(A) else np.array([])
+    f = np.abs(p) / (2 * np.pi)
+    sel = (p.imag > 0) & (f >= band_hz[0]) & (f <= band_hz[1])
+    if not np.any(sel):
+        return float("nan"), float("nan")
+    z = -p.real[sel] / np.abs(p[sel])
+    i = int(np.argmin(z))
+    return float(z[i]), float(f[sel][i])
 
 
 def _analyse(G, K, f, S_ss=None) -> LoopAnalysis:
     if S_ss is None:
         S_ss = loop_functions(G, K)[0]
     mrp = _max_real_pole(S_ss.A)
+    zmin, zmin_hz = _min_damping(S_ss.A)
     Gf, Kf = freqresp(G, f), freqresp(K, f)
     Sf, Tf, KSf = _loop_freq(Gf, Kf)
     sS, sT, sKS = _svals(Sf), _svals(Tf), _svals(KSf)
@@ -760,7 +913,7 @@ def _analyse(G, K, f, S_ss=None) -> LoopAnalysis:
                         bandwidth_S_hz=_crossing(f, sS[:, 0], INV_SQRT2, rising=True),
                         bandwidth_T_hz=_crossing(f, sT[:, 0], INV_SQRT2, rising=False),
                         bandwidth_T_last_hz=_crossing(f, sT[:, 0], INV_SQRT2, rising=False, first=False),
-                        sigma_S=sS, sigma_T=sT, sigma_KS=sKS, T_f=Tf)
+                        sigma_S=sS, sigma_T=sT, sigma_KS=sKS, T_f=Tf, min_damping=zmin, min_damping_hz=zmin_hz)
 
 
 @dataclass(frozen=True, eq=False)
@@ -806,6 +959,9 @@ class Design:
         Set by :func:`run_design`.
     discretization : Discretization or None
         Set by :func:`run_design`.
+    damping : DampingLoop or None
+        Inner damping loop; then ``G_nominal``, ``G_full`` and ``G_twin`` are the
+        damped plants ``(I - G Ky)^-1 G`` and ``K`` is the outer (tracking) controller.
     """
 
     K: Any
@@ -829,6 +985,23 @@ class Design:
     sign_convention: str = SIGN_CONVENTION
     reduction: "Reduction | None" = None
     discretization: "Discretization | None" = None
+    damping: "DampingLoop | None" = None
+
+    def feedback_controller(self):
+        """``u = -K_fb y`` part of the loop (``K - Ky``; ``K`` without damping), error sign."""
+        if self.damping is None:
+            return self.K
+        return _ct().parallel(self.K, -self.damping.Ky)
+
+    def controller_2dof(self):
+        """``[K, Ky]``: inputs ``[e; y]`` (sensor V) -> ``u`` (controller V); ``K`` without damping."""
+        if self.damping is None:
+            return self.K
+        ct = _ct()
+        K, Ky = self.K, self.damping.Ky
+        from scipy.linalg import block_diag
+        return ct.ss(block_diag(np.asarray(K.A), np.asarray(Ky.A)), block_diag(np.asarray(K.B), np.asarray(Ky.B)),
+                     np.hstack([np.asarray(K.C), np.asarray(Ky.C)]), np.hstack([np.asarray(K.D), np.asarray(Ky.D)]))
 
     # convenience accessors (paper quantities)
     @property
@@ -892,6 +1065,11 @@ class Design:
             "max_real_pole_full_rad_s": la(self.full, "max_real_pole"),
             "max_real_pole_twin_rad_s": la(self.twin, "max_real_pole"),
             "sb10ad_rcond": [float(x) for x in self.rcond],
+            "damping_loop": None if self.damping is None else self.damping.to_dict(),
+            "closed_loop_min_damping_nominal": self.nominal.min_damping,
+            "closed_loop_min_damping_nominal_hz": self.nominal.min_damping_hz,
+            "closed_loop_min_damping_twin": la(self.twin, "min_damping"),
+            "closed_loop_min_damping_twin_hz": la(self.twin, "min_damping_hz"),
             "sign_convention": self.sign_convention,
             "bandwidth_definitions": BANDWIDTH_DEFINITIONS,
         }
@@ -1432,8 +1610,11 @@ def plot_controller_bode(d: Design, disc: Discretization | None = None, f=None):
     f = analysis_grid_hz([d.K], 0.01, 0.999 * nyq, 1500) if f is None else f
     curves = [("continuous K", freqresp(d.K, f), dict(color="tab:blue", lw=1.2))]
     if disc is not None:
-        curves.append((f"discrete ({disc.method}, {1 / disc.dt:.0f} Hz)", freqresp(disc.Kd, f),
+        ny = d.G_nominal.noutputs
+        curves.append((f"discrete ({disc.method}, {1 / disc.dt:.0f} Hz)", freqresp(disc.Kd, f)[:, :, :ny],
                        dict(color="tab:orange", ls="--", lw=1.0)))
+    if d.damping is not None:
+        curves.append(("damping loop Ky (y -> u)", freqresp(d.damping.Ky, f), dict(color="tab:green", lw=1.0)))
     on = _names(d.G_nominal.noutputs, _OUT)
     inn = _names(d.G_nominal.ninputs, _IO)
     return _bode_grid(f"Controller K ({d.controller_order} states): error -> command (cf. paper Fig. 22)", curves, f,
@@ -1479,7 +1660,8 @@ def _load_model(path, name="model_npz"):
 @_blas_single_threaded
 def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLike | None = None,
                reduced_order: int = 10, twin=None, progress: bool = True, *,
-               dt: float | None = None, discretization: str = "auto", gamma_relax: float = 0.0) -> Design:
+               dt: float | None = None, discretization: str = "auto", gamma_relax: float = 0.0,
+               damping_zeta: float | None = None, damping_lowpass_hz: float = 400.0) -> Design:
     """Reduce, design, discretize and export (paper Sec. 4).
 
     Parameters
@@ -1501,6 +1683,12 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
         See :func:`discretize_controller`.
     gamma_relax : float, default 0.0
         See :func:`design_hinf` (0 = optimal central controller, as ``mixsyn``).
+    damping_zeta : float, optional
+        Add an inner damping loop (:func:`damping_loop`, built on the reduced model)
+        that adds this damping ratio to the first mode; ``None`` = the paper's
+        single loop. The controller then has inputs ``[e; y]`` (``n_error = 3``).
+    damping_lowpass_hz : float, default 400
+        Low-pass corner of the damping loop [Hz].
 
     Returns
     -------
@@ -1536,22 +1724,37 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
     say(f"reduced to {red.order} states; DC gain rel. error {red.dc_gain_rel_error:.2e}; "
         f"HSV kept >= {red.hsv_kept.min() if red.hsv_kept.size else float('nan'):.3g}, "
         f"dropped <= {red.hsv_dropped.max() if red.hsv_dropped.size else 0:.3g}")
+    dl = None
+    if damping_zeta is not None:
+        dl = damping_loop(red.G_reduced, damping_zeta, lowpass_hz=damping_lowpass_hz)
+        say(f"damping loop: +{dl.zeta_added:g} damping at {dl.mode_hz:.1f} Hz, low-pass {dl.lowpass_hz:g} Hz")
     t = time.perf_counter()
-    d = design_hinf(red.G_reduced, W, G_full=G_full, G_twin=G_twin, gamma_relax=gamma_relax)
+    d = design_hinf(damped_plant(red.G_reduced, dl), W, G_full=damped_plant(G_full, dl),
+                    G_twin=damped_plant(G_twin, dl), gamma_relax=gamma_relax)
+    d = dataclasses.replace(d, damping=dl)
     timings["synthesis_and_analysis_s"] = time.perf_counter() - t
     say(f"H-infinity: gamma = {d.gamma:.4f}, controller order {d.controller_order}, "
         f"||S|| nominal {d.S_peak_nominal:.3f}, full {d.S_peak_full:.3f}, "
         f"BW S {d.bandwidth_S_hz:.1f} Hz, BW T {d.bandwidth_T_hz:.1f} Hz, stable full: {d.stable_full}")
     t = time.perf_counter()
-    disc = discretize_controller(d.K, dt, discretization)
+    K2 = d.controller_2dof()
+    disc = discretize_controller(K2, dt, discretization)
     timings["discretization_s"] = time.perf_counter() - t
     say(f"discretized at {1 / dt:.0f} Hz with {disc.method}: max rel. error below {disc.f_check_hz:.0f} Hz "
         f"= {disc.max_rel_error:.3g} (Tustin: {disc.tustin_max_rel_error:.3g})")
     Gd = Gd_full if (Gd_full is not None and abs(Gd_full.dt - dt) <= 1e-12 * dt) else ct.c2d(G_full, dt, "zoh")
-    stable_d, rho_d = discrete_closed_loop(Gd, disc.Kd)
+    ny = G_full.noutputs
+
+    def feedback_part(Kx):       # error-sign feedback operator K - Ky of [K, Ky]
+        if dl is None:
+            return Kx
+        B, D = np.asarray(Kx.B), np.asarray(Kx.D)
+        return ct.ss(Kx.A, B[:, :ny] - B[:, ny:], Kx.C, D[:, :ny] - D[:, ny:], Kx.dt)
+
+    stable_d, rho_d = discrete_closed_loop(Gd, feedback_part(disc.Kd))
     stable_d_tustin = None
     if disc.method != "tustin":
-        stable_d_tustin = discrete_closed_loop(Gd, ct.c2d(d.K, dt, "tustin"))[0]
+        stable_d_tustin = discrete_closed_loop(Gd, feedback_part(ct.c2d(K2, dt, "tustin")))[0]
 
     # --- uncertainty summary (paper Fig. 10 statements)
     fe = analysis_grid_hz([G_full, red.G_reduced], 1.0, 2000.0, 1500)
@@ -1560,18 +1763,22 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
 
     # --- artifacts
     Kd = disc.Kd
+    io_units = (["u = Ck x + Dk e (continuous: dx/dt = Ak x + Bk e; discrete: x[k+1] = Akd x[k] + Bkd e[k])"]
+                if dl is None else
+                ["inputs [e; y]: e = r - y (n_error = 3 columns), then the measurement y in sensor volts",
+                 "u = Ck x + Dk [e; y] (continuous: dx/dt = Ak x + Bk [e; y]; discrete likewise with Akd..Dkd)"])
     units = np.array(["e: tracking error r - y in sensor volts (X,Y,Z), 5 um/V",
-                      "u: controller volts for actuators A,B,C (before the x20 amplifier)",
-                      "u = Ck x + Dk e (continuous: dx/dt = Ak x + Bk e; discrete: x[k+1] = Akd x[k] + Bkd e[k])",
+                      "u: controller volts for actuators A,B,C (before the x20 amplifier)", *io_units,
                       "dt in seconds"])
-    _io.write_npz(out / "controller.npz", Ak=d.K.A, Bk=d.K.B, Ck=d.K.C, Dk=d.K.D,
+    _io.write_npz(out / "controller.npz", Ak=K2.A, Bk=K2.B, Ck=K2.C, Dk=K2.D,
                   Akd=Kd.A, Bkd=Kd.B, Ckd=Kd.C, Dkd=Kd.D, dt=np.float64(dt), gamma=np.float64(d.gamma),
-                  units=units, sign_convention=np.array(SIGN_CONVENTION), method=np.array(disc.method))
+                  n_error=np.int64(ny), units=units, sign_convention=np.array(SIGN_CONVENTION),
+                  method=np.array(disc.method))
     _io.write_npz(out / "reduced_model.npz", A=red.G_reduced.A, B=red.G_reduced.B, C=red.G_reduced.C,
                   D=red.G_reduced.D, hankel_sv=red.hankel_sv, units=np.array(UNITS["plant_G"]))
     mat = {"G_A": G_full.A, "G_B": G_full.B, "G_C": G_full.C, "G_D": G_full.D,
            "Gr_A": red.G_reduced.A, "Gr_B": red.G_reduced.B, "Gr_C": red.G_reduced.C, "Gr_D": red.G_reduced.D,
-           "K_A": d.K.A, "K_B": d.K.B, "K_C": d.K.C, "K_D": d.K.D,
+           "K_A": K2.A, "K_B": K2.B, "K_C": K2.C, "K_D": K2.D, "K_n_error": ny,
            "Kd_A": Kd.A, "Kd_B": Kd.B, "Kd_C": Kd.C, "Kd_D": Kd.D, "Ts": float(dt), "gamma": d.gamma,
            "hankel_sv": red.hankel_sv,
            "units": UNITS["plant_G"] + "; K: " + UNITS["controller_K"], "sign_convention": SIGN_CONVENTION}

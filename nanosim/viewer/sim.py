@@ -111,7 +111,10 @@ class LiveSim:
         self.u_V = np.zeros(3)
         self.ref_um = np.zeros(3)
         if self.controller is not None:
-            self.controller.reset()
+            if self.controller.two_dof:
+                self.controller.reset(measurement_V=self.y_V)
+            else:
+                self.controller.reset()
 
     def _home_reading_V(self) -> np.ndarray:
         d = home_data(self.model)
@@ -138,7 +141,10 @@ class LiveSim:
         self.ref_um = np.asarray(ref_um, float)
         if self.controller_on and self.controller is not None:
             e = self.ref_um / C.SENSOR_UM_PER_V + self.y_home_V - self.y_V
-            self.u_V = np.asarray(self.controller.step(e), float)
+            if self.controller.two_dof:
+                self.u_V = np.asarray(self.controller.step(e, self.y_V), float)
+            else:
+                self.u_V = np.asarray(self.controller.step(e), float)
         else:
             self.u_V = self.G0inv @ self.ref_um
         self.y_V = np.asarray(self.stage.step(self.u_V), float)
