@@ -397,8 +397,7 @@ class ViewerApp:
                 self._wave_t0 = self.sim.time_s
             elif item[0] == "controller":
                 self.sim.controller_on = item[1] and self.sim.controller is not None
-                if self.sim.controller is not None:
-                    self.sim.controller.reset()
+                self.sim.reset_controller()
             elif item[0] == "realistic":
                 self.sim.set_realistic(item[1])
                 self._pace_reset = True

@@ -110,11 +110,16 @@ class LiveSim:
         self.y_V = self.y_home_V.copy()
         self.u_V = np.zeros(3)
         self.ref_um = np.zeros(3)
-        if self.controller is not None:
-            if self.controller.two_dof:
-                self.controller.reset(measurement_V=self.y_V)
-            else:
-                self.controller.reset()
+        self.reset_controller()
+
+    def reset_controller(self) -> None:
+        """Zero the controller state (a damping loop starts at equilibrium with the current reading)."""
+        if self.controller is None:
+            return
+        if self.controller.two_dof:
+            self.controller.reset(measurement_V=self.y_V)
+        else:
+            self.controller.reset()
 
     def _home_reading_V(self) -> np.ndarray:
         d = home_data(self.model)
