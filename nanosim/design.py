@@ -1398,6 +1398,18 @@ def discretize_controller(K, dt: float = constants.CONTROL_PERIOD_S, method: str
                           errors_by_method=dict(errors))
 
 
+def _error_rel_to_peak(K, Kd, f_max_hz: float) -> float:
+    """``max_f sigma_max(Kd - K) / max_f sigma_max(K)`` on ``0..f_max_hz`` (for K with K(0) = 0)."""
+    f = _check_grid_hz(K, f_max_hz)
+    Hc = freqresp(K, f)
+    return float(_smax(freqresp(Kd, f) - Hc).max() / max(_smax(Hc).max(), 1e-300))
+
+
+def _dc_gain_discrete(Kd) -> np.ndarray:
+    A = np.asarray(Kd.A, float)
+    return np.asarray(Kd.D, float) + np.asarray(Kd.C) @ np.linalg.solve(np.eye(A.shape[0]) - A, np.asarray(Kd.B))
+
+
 def discrete_closed_loop(Gd, Kd):
     """Sampled closed loop ``u(k) = Kd e(k)``, ``e = r - y``: returns
     ``(stable, spectral_radius)`` of the discrete ``S = (I + Gd Kd)^-1``."""
@@ -1738,7 +1750,18 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
         f"BW S {d.bandwidth_S_hz:.1f} Hz, BW T {d.bandwidth_T_hz:.1f} Hz, stable full: {d.stable_full}")
     t = time.perf_counter()
     K2 = d.controller_2dof()
-    disc = discretize_controller(K2, dt, discretization)
+    disc = discretize_controller(d.K, dt, discretization)
+    disc_y = None
+    Kd2 = disc.Kd
+    if dl is not None:
+        # Tustin (per-mode prewarp) maps s = 0 to z = 1, so Ky_d(1) = Ky(0) = 0 exactly: a constant
+        # reading (the Z probe's offset at home) must not leak into u through the damping loop.
+        disc_y = discretize_controller(dl.Ky, dt, "tustin_modal")
+        from scipy.linalg import block_diag
+        Kd2 = ct.ss(block_diag(np.asarray(disc.Kd.A), np.asarray(disc_y.Kd.A)),
+                    block_diag(np.asarray(disc.Kd.B), np.asarray(disc_y.Kd.B)),
+                    np.hstack([np.asarray(disc.Kd.C), np.asarray(disc_y.Kd.C)]),
+                    np.hstack([np.asarray(disc.Kd.D), np.asarray(disc_y.Kd.D)]), dt)
     timings["discretization_s"] = time.perf_counter() - t
     say(f"discretized at {1 / dt:.0f} Hz with {disc.method}: max rel. error below {disc.f_check_hz:.0f} Hz "
         f"= {disc.max_rel_error:.3g} (Tustin: {disc.tustin_max_rel_error:.3g})")
@@ -1751,7 +1774,7 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
         B, D = np.asarray(Kx.B), np.asarray(Kx.D)
         return ct.ss(Kx.A, B[:, :ny] - B[:, ny:], Kx.C, D[:, :ny] - D[:, ny:], Kx.dt)
 
-    stable_d, rho_d = discrete_closed_loop(Gd, feedback_part(disc.Kd))
+    stable_d, rho_d = discrete_closed_loop(Gd, feedback_part(Kd2))
     stable_d_tustin = None
     if disc.method != "tustin":
         stable_d_tustin = discrete_closed_loop(Gd, feedback_part(ct.c2d(K2, dt, "tustin")))[0]
@@ -1762,7 +1785,7 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
     eo_db = _db(eo)
 
     # --- artifacts
-    Kd = disc.Kd
+    Kd = Kd2
     io_units = (["u = Ck x + Dk e (continuous: dx/dt = Ak x + Bk e; discrete: x[k+1] = Akd x[k] + Bkd e[k])"]
                 if dl is None else
                 ["inputs [e; y]: e = r - y (n_error = 3 columns), then the measurement y in sensor volts",
@@ -1807,6 +1830,10 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
         "discretization_errors_by_method": disc.errors_by_method,
         "tustin_max_rel_error_below_500hz": disc.tustin_max_rel_error,
         "discretization_within_1_percent": disc.within_tol,
+        "damping_loop_discretization": None if disc_y is None else {
+            "method": disc_y.method,
+            "max_error_rel_to_peak_below_500hz": _error_rel_to_peak(dl.Ky, disc_y.Kd, 500.0),
+            "dc_gain_abs_max": float(np.abs(_dc_gain_discrete(disc_y.Kd)).max())},
         "stable_discrete_full": stable_d, "spectral_radius_discrete_full": rho_d,
         "stable_discrete_full_with_plain_tustin": stable_d_tustin,
         "units": UNITS,

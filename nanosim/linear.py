@@ -35,12 +35,18 @@ class LinearTwin:
     sys_um : continuous, controller V -> um (3x3).
     sysd_V : discrete at the control period (ZOH), controller V -> sensor V.
     dt_s : control period (s).
+    qpos_C, qpos_D : with ``with_qpos``: joint displacements from home
+        ``dq = qpos_C x + qpos_D v`` (nv rows; rad or m) for the state ``x`` of
+        ``sysd_V`` and its input ``v`` (controller V), fast closure modes
+        residualised like the probe outputs. For drawing the mechanism.
     """
 
     sys_V: ct.StateSpace
     sys_um: ct.StateSpace
     sysd_V: ct.StateSpace
     dt_s: float
+    qpos_C: np.ndarray | None = None
+    qpos_D: np.ndarray | None = None
 
     @property
     def dc_gain_um_per_V(self) -> np.ndarray:
@@ -75,7 +81,7 @@ def _slow_continuous(Ad: np.ndarray, Bd: np.ndarray, Cm: np.ndarray, h: float, f
     return Ac, Bc, C1, D
 
 
-def linearize(stage, f_cut_hz: float = 2500.0, include_piezo: bool = False) -> LinearTwin:
+def linearize(stage, f_cut_hz: float = 2500.0, include_piezo: bool = False, with_qpos: bool = False) -> LinearTwin:
     """Linear twin of ``stage`` about its home keyframe.
 
     Parameters
@@ -85,14 +91,21 @@ def linearize(stage, f_cut_hz: float = 2500.0, include_piezo: bool = False) -> L
     include_piezo : also include the piezo's small-signal hysteresis gain and
         the creep filter of ``stage.config.piezo`` (default: linear piezo,
         the "ideal" stage with every effect off).
+    with_qpos : also return the joint-displacement outputs (``qpos_C``, ``qpos_D``);
+        not with ``include_piezo``.
     """
+    if with_qpos and include_piezo:
+        raise ValueError("with_qpos: only for the mechanical twin (include_piezo=False)")
     model = stage.model
     h = model.opt.timestep
     Ad, Bd = linearize_fd(model)
     nv = model.nv
     probe = mechanical_matrices(model).probe
     Cm = np.hstack([probe, np.zeros((3, Ad.shape[0] - nv))])
-    A, B, Cm_s, D = _slow_continuous(Ad, Bd, Cm, h, f_cut_hz)
+    if with_qpos:
+        Cm = np.vstack([Cm, np.hstack([np.eye(nv), np.zeros((nv, Ad.shape[0] - nv))])])
+    A, B, C_all, D_all = _slow_continuous(Ad, Bd, Cm, h, f_cut_hz)
+    Cm_s, D = C_all[:3], D_all[:3]
     gain_in = volts_to_force_N()
     sys_m = ct.ss(A, B * gain_in, Cm_s, D * gain_in)
     if include_piezo:
@@ -100,7 +113,19 @@ def linearize(stage, f_cut_hz: float = 2500.0, include_piezo: bool = False) -> L
     sys_um = sys_m * 1e6
     sys_V = sys_um * (1.0 / C.SENSOR_UM_PER_V)
     dt = stage.dt_s
-    return LinearTwin(sys_V=sys_V, sys_um=sys_um, sysd_V=ct.c2d(sys_V, dt, "zoh"), dt_s=dt)
+    sysd_V = ct.c2d(sys_V, dt, "zoh")
+    qpos_C = qpos_D = None
+    if with_qpos:
+        # same continuous (A, B) and ZOH as sysd_V, so its state drives these rows too
+        # same continuous A and ZOH as sysd_V; python-control may have moved the output
+        # scaling of sys_V into B, so map the state: x_V = alpha x_q
+        sysd_q = ct.c2d(ct.ss(A, B * gain_in, C_all[3:], D_all[3:] * gain_in), dt, "zoh")
+        Bq, BV = np.asarray(sysd_q.B), np.asarray(sysd_V.B)
+        alpha = float(np.vdot(Bq, BV) / np.vdot(Bq, Bq))
+        if not (np.allclose(sysd_q.A, sysd_V.A, rtol=1e-6, atol=1e-6) and np.allclose(alpha * Bq, BV, rtol=1e-6)):
+            raise RuntimeError("linearize: the qpos outputs do not share the twin's state")   # pragma: no cover
+        qpos_C, qpos_D = np.asarray(sysd_q.C) / alpha, np.asarray(sysd_q.D)
+    return LinearTwin(sys_V=sys_V, sys_um=sys_um, sysd_V=sysd_V, dt_s=dt, qpos_C=qpos_C, qpos_D=qpos_D)
 
 
 def _piezo_small_signal(stage) -> ct.StateSpace:

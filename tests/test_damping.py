@@ -135,6 +135,25 @@ def test_run_design_two_dof_controller_rings_less(tmp_path):
         ring[name] = np.abs(ys[800:, :2]).max()             # 0.2-0.5 s after the pulse
         tail = ys[-400:, 0]
         assert np.all(np.isfinite(ys)) and abs(tail.mean()) < 1e-3
+        if zeta:
+            # Ky(0) = 0 exactly in the exported discrete controller (Tustin keeps s = 0 at z = 1) ...
+            js = __import__("json").loads((out / "design.json").read_text())
+            assert js["damping_loop_discretization"]["dc_gain_abs_max"] < 1e-9
+            # ... so a constant reading offset (the Z probe reads -5 V at home) changes nothing:
+            # measurement y = y_true + offset, reference = offset + 0.4 V step on X.
+            runs = []
+            for offset in (np.zeros(3), np.array([0.3, -1.0, -5.0])):
+                ctrl.reset(measurement_V=offset)
+                x = np.zeros(Gd.nstates)
+                r = offset + np.array([0.4, 0.0, 0.0])
+                traj = []
+                for _ in range(2000):
+                    y = Gd.C @ x + offset
+                    x = Gd.A @ x + Gd.B @ ctrl.step(r - y, y)
+                    traj.append(Gd.C @ x)
+                runs.append(np.array(traj))
+            assert_allclose(runs[1], runs[0], atol=1e-9)
+            assert_allclose(runs[0][-1], [0.4, 0.0, 0.0], atol=2e-3)     # creep lag still settling
     print(f"residual ring 0.2-0.5 s after the pulse (sensor V): {ring}")
     assert ring["damped"] < 0.1 * ring["single"]
 

@@ -209,3 +209,24 @@ def test_live_closed_loop_tracks_a_reference(tmp_path):
     ref = np.array([2.0, -1.0, 0.5])
     y = np.array([sim.step(ref) for _ in range(1200)])
     np.testing.assert_allclose(y[-200:].mean(axis=0), ref, atol=0.01)      # within 10 nm after 0.25 s
+
+
+def test_linear_physics_follows_mujoco():
+    """The viewer's fast backend (MuJoCo's linearization) moves the mechanism like MuJoCo does."""
+    from nanosim.viewer.sim import LiveSim
+
+    sims = {ph: LiveSim(physics=ph) for ph in ("mujoco", "linear")}     # open loop, ideal electronics
+    ref = np.array([3.0, -2.0, 1.0])
+    out = {}
+    for ph, sim in sims.items():
+        y = np.array([sim.step(ref) for _ in range(400)])                # 0.1 s
+        out[ph] = (y, sim.qpos)
+    (y_mj, q_mj), (y_lin, q_lin) = out["mujoco"], out["linear"]
+    from nanosim.mechanics import home_data
+    q0 = home_data(sims["mujoco"].model).qpos
+    peak = np.abs(y_mj).max()
+    np.testing.assert_allclose(y_lin, y_mj, atol=0.02 * peak)            # probes within 2 % of the stroke
+    dq_mj, dq_lin = q_mj - q0, q_lin - q0
+    np.testing.assert_allclose(dq_lin, dq_mj, atol=0.03 * np.abs(dq_mj).max())
+    with pytest.raises(ValueError, match="physics"):
+        LiveSim(physics="fast")

@@ -19,6 +19,9 @@ def add_view_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1",
                         help="bind address (default 127.0.0.1; anything else is reachable from the network)")
     parser.add_argument("--mjcf", metavar="PATH", default=None, help="stage MJCF (default: bundled scene)")
+    parser.add_argument("--physics", choices=("auto", "mujoco", "linear"), default="auto",
+                        help="mujoco: the nonlinear MuJoCo integrator; linear: MuJoCo's linearization about "
+                             "home (much faster); auto (default): MuJoCo if it keeps real time, else linear")
     parser.add_argument("--seconds", type=float, default=None,
                         help="serve for S seconds then exit (tests, screenshots)")
 
@@ -43,7 +46,8 @@ def run_view(args) -> int:
         return 2
     try:
         from .server import ViewerApp
-        app = ViewerApp(model_path=args.mjcf, controller_path=args.controller, host=host, port=port)
+        app = ViewerApp(model_path=args.mjcf, controller_path=args.controller, host=host, port=port,
+                        physics=getattr(args, "physics", "auto"))
     except (FileNotFoundError, ValueError) as exc:
         print(f"view: {exc}", file=sys.stderr)
         return 2

@@ -29,6 +29,10 @@ HIST = 1500            # plot samples kept (decimated)
 HIST_DECIM = 8         # one plot sample per 8 control steps (500 Hz)
 TRAIL = 120            # trail points
 CHUNK = 20             # control steps per physics chunk (5 ms)
+PHYSICS_CHOICES = ("auto", "mujoco", "linear")
+PHYSICS_LABELS = ("auto", "MuJoCo (nonlinear)", "linearized MuJoCo (fast)")
+AUTO_WINDOW_S = 2.0    # auto: measure MuJoCo's real-time factor over this much running
+AUTO_MIN_RTF = 0.95    # ... and keep it if it reaches this
 
 
 class ViewerApp:
@@ -40,11 +44,16 @@ class ViewerApp:
     """
 
     def __init__(self, model_path=None, controller_path=None, host: str = "127.0.0.1",
-                 port: int = 8080, seed: int = 0, realtime: bool = True):
+                 port: int = 8080, seed: int = 0, realtime: bool = True, physics: str = "auto"):
+        if physics not in PHYSICS_CHOICES:
+            raise ValueError(f"physics: expected one of {PHYSICS_CHOICES}, got {physics!r}")
         self.host, self.port = host, int(port)
         self.model = load_model(model_path)
         controller = load_controller(controller_path) if controller_path else None
-        self.sim = LiveSim(model=self.model, mjcf=model_path, controller=controller, seed=seed)
+        self.physics_choice = physics
+        self.sim = LiveSim(model=self.model, mjcf=model_path, controller=controller, seed=seed,
+                           physics="linear" if physics == "linear" else "mujoco")
+        self.physics_note = ""
         self.modal = modal_analysis(self.model)
         self.modes = self.modal.physical
         self.realtime = realtime
@@ -145,7 +154,7 @@ class ViewerApp:
         s.add_light_directional("/sun", intensity=1.5, position=(0, 0, 300))
         self._body_frames = {}
         bodies = sorted({g.body for g in self.geoms} | {h.body for h in self.hinges})
-        d = self.sim.stage.data
+        d = self.exag.pose(self.sim.qpos, 1.0)
         for b in bodies:
             self._body_frames[b] = s.add_frame(f"/stage/b{b}", show_axes=False,
                                                position=d.xpos[b] * sc.MM, wxyz=d.xquat[b])
@@ -269,7 +278,18 @@ class ViewerApp:
                 reset = gui.add_button("reset")
                 self._gui_rtf = gui.add_text("real-time factor", "-", disabled=True)
                 self._gui_time = gui.add_text("sim time", "0.000 s", disabled=True)
-                gui.add_text("backend", self.sim.backend, disabled=True)
+                phys = gui.add_dropdown("physics", PHYSICS_LABELS, initial_value=PHYSICS_LABELS[
+                    PHYSICS_CHOICES.index(self.physics_choice)],
+                    hint="MuJoCo: the nonlinear integrator, 20 substeps per 4 kHz period. Linearized: "
+                         "MuJoCo's own linearization about home (12 states, < 2 % from MuJoCo at um "
+                         "strokes), same electronics. auto: MuJoCo if it keeps real time, else linearized")
+                self._gui_physics = gui.add_text("running", self._physics_text(), disabled=True)
+
+                @phys.on_update
+                def _(_e):
+                    choice = PHYSICS_CHOICES[PHYSICS_LABELS.index(phys.value)]
+                    self._pending.append(("physics", choice))
+                    self.events.append(f"physics={choice}")
 
                 @ctrl.on_update
                 def _(_e):
@@ -370,6 +390,7 @@ class ViewerApp:
             i0 = self._hist_n % HIST
             h = np.roll(self._hist, -i0, axis=0)[HIST - n:] if n else None
         self._gui_rtf.value = f"{self.real_time_factor:.2f}  (scene {self.scene_hz:.0f} Hz)"
+        self._gui_physics.value = self._physics_text()
         self._gui_time.value = f"{snap['t']:.3f} s"
         sat = snap["saturated"]
         self._gui_piezo.value = "  ".join(f"{v:6.1f}{'!SAT' if s else ''}" for v, s in zip(snap["piezo_V"], sat))
@@ -401,9 +422,45 @@ class ViewerApp:
             elif item[0] == "realistic":
                 self.sim.set_realistic(item[1])
                 self._pace_reset = True
+            elif item[0] == "physics":
+                self.physics_choice = item[1]
+                self.physics_note = ""
+                self._auto_t0 = None
+                self._switch_physics("linear" if item[1] == "linear" else "mujoco")
+
+    def _physics_text(self) -> str:
+        name = "MuJoCo (nonlinear)" if self.sim.physics == "mujoco" else "linearized MuJoCo"
+        return name + (f" - {self.physics_note}" if self.physics_note else "")
+
+    def _switch_physics(self, physics: str) -> None:
+        if physics != self.sim.physics:
+            self.sim.set_physics(physics)
+            self._hist[:] = np.nan
+            self._hist_n = 0
+            self._trail.clear()
+            self._wave_t0 = 0.0
+        self._pace_reset = True
+
+    def _auto_physics(self, now: float) -> None:
+        """auto: after AUTO_WINDOW_S of unpaused running, keep MuJoCo if it kept real time."""
+        if self.physics_choice != "auto" or self.sim.physics != "mujoco" or self.physics_note:
+            return
+        if self._auto_t0 is None:
+            self._auto_t0, self._auto_sim0 = now, self.sim.time_s
+            return
+        if now - self._auto_t0 < AUTO_WINDOW_S:
+            return
+        rtf = (self.sim.time_s - self._auto_sim0) / (now - self._auto_t0)
+        if rtf < AUTO_MIN_RTF:
+            self.physics_note = f"auto: MuJoCo ran at {rtf:.2f}x real time"
+            self.events.append(f"physics auto -> linear (MuJoCo {rtf:.2f}x)")
+            self._switch_physics("linear")
+        else:
+            self.physics_note = f"auto: keeps real time ({rtf:.2f}x)"
 
     def _physics_loop(self) -> None:
         dt = self.sim.dt_s
+        self._auto_t0 = None
         self._pace_reset = True
         win_wall, win_sim = time.perf_counter(), self.sim.time_s
         step_count = 0
@@ -412,10 +469,12 @@ class ViewerApp:
             now = time.perf_counter()
             if self.paused:
                 self._pace_reset = True
+                self._auto_t0 = None
                 win_wall, win_sim = now, self.sim.time_s
                 self.real_time_factor = 0.0
                 time.sleep(0.02)
                 continue
+            self._auto_physics(now)
             if self._pace_reset:
                 wall0, sim0 = now, self.sim.time_s
                 win_wall, win_sim = now, sim0

@@ -39,6 +39,9 @@ def load_controller(path):
         raise ValueError(f"controller: cannot read {str(p)!r}: {msg}") from None
 
 
+PHYSICS = ("mujoco", "linear")
+
+
 class RawStage:
     """Minimal Stage stand-in on raw MuJoCo (linear piezo, optional noise/saturation)."""
 
@@ -83,7 +86,9 @@ class LiveSim:
     """
 
     def __init__(self, model: mujoco.MjModel | None = None, mjcf=None, controller=None,
-                 realistic: bool = False, seed: int = 0):
+                 realistic: bool = False, seed: int = 0, physics: str = "mujoco"):
+        if physics not in PHYSICS:
+            raise ValueError(f"physics: expected one of {PHYSICS}, got {physics!r}")
         self.mjcf = mjcf
         self.model = model if model is not None else load_model(mjcf)
         self.controller = controller
@@ -93,10 +98,33 @@ class LiveSim:
         self.G0inv = np.linalg.inv(self.G0)
         self.backend = "stage" if Stage is not None else "raw-mujoco"
         self.realistic = realistic
+        self.physics = physics
+        self._twin = None
         self._make_stage()
 
+    def set_physics(self, physics: str) -> None:
+        """``"mujoco"`` (nonlinear integrator, 20 substeps per period) or ``"linear"``
+        (MuJoCo's own linearization about home, one 12-state step per period); resets."""
+        if physics not in PHYSICS:
+            raise ValueError(f"physics: expected one of {PHYSICS}, got {physics!r}")
+        if physics != self.physics:
+            self.physics = physics
+            self._make_stage()
+
+    def _linear_twin(self):
+        if self._twin is None:
+            from ..linear import linearize
+            self._twin = linearize(Stage(config=StageConfig.ideal(), model=self.model), with_qpos=True)
+        return self._twin
+
     def _make_stage(self):
-        if Stage is not None:
+        if self.physics == "linear":
+            from ..experiments import TwinStage
+            cfg = StageConfig() if self.realistic else StageConfig.ideal()
+            home = home_data(self.model)
+            self.stage = TwinStage(self._linear_twin(), seed=self.seed, config=cfg,
+                                   home_um=probe_readings_um(self.model, home), home_qpos=home.qpos)
+        elif Stage is not None:
             cfg = StageConfig() if self.realistic else StageConfig.ideal()
             try:
                 self.stage = Stage(seed=self.seed, config=cfg, model=self.model)
@@ -157,6 +185,8 @@ class LiveSim:
 
     @property
     def qpos(self) -> np.ndarray:
+        if self.physics == "linear":
+            return self.stage.qpos
         return self.stage.data.qpos.copy()
 
     def snapshot(self) -> dict:
