@@ -225,7 +225,22 @@ class DiscreteController:
         self._xe[: self._n] = x0
         self._xe[self._n:] = 0.0
 
+    def reset_at(self, measurement_V) -> None:
+        """Start a loop at the reading ``measurement_V`` [sensor V]: zero state, or for a
+        two-degree-of-freedom controller the equilibrium at that reading (see :meth:`reset`)."""
+        if self.two_dof:
+            self.reset(measurement_V=measurement_V)
+        else:
+            self.reset()
+
     # --- stepping ----------------------------------------------------------------------
+    def feedback(self, reference_V, measurement_V) -> np.ndarray:
+        """One closed-loop sample: ``step(r - y)``, or ``step(r - y, y)`` for a
+        two-degree-of-freedom controller (``r``, ``y`` in sensor V)."""
+        y = np.asarray(measurement_V, dtype=float)
+        e = np.asarray(reference_V, dtype=float) - y
+        return self.step(e, y) if self.two_dof else self.step(e)
+
     @staticmethod
     def _check(name, value, n) -> np.ndarray:
         v = np.asarray(value, dtype=float)

@@ -74,7 +74,7 @@ __all__ = [
     "Reduction", "reduce_model", "multiplicative_uncertainty",
     "AssumptionReport", "check_assumptions", "generalized_plant",
     "Design", "design_hinf", "loop_functions",
-    "DampingLoop", "damping_loop", "damped_plant",
+    "DampingLoop", "damping_loop", "damped_plant", "stack_inputs", "feedback_operator",
     "Discretization", "discretize_controller", "discretization_error",
     "discrete_closed_loop", "run_design",
     "plot_hankel", "plot_reduction_bode", "plot_uncertainty", "plot_weights",
@@ -565,6 +565,18 @@ def _on_axis(p, rtol):
     return abs(p.real) <= rtol * max(1.0, abs(p))
 
 
+def _axis_zeros(A, B2, C1, D12, axis_rtol, tol, smin) -> list:
+    """Imaginary-axis zeros of ``[A - sI, B2; C1, D12]`` (D12 full column rank): the
+    eigenvalues ``q`` (Im q >= 0) of ``A - B2 D12^+ C1`` on the axis where
+    ``[A - B2 D12^+ C1 - qI; (I - D12 D12^+) C1]`` loses column rank."""
+    n = A.shape[0]
+    D12p = np.linalg.pinv(D12)
+    At = A - B2 @ D12p @ C1
+    Cp = C1 - D12 @ (D12p @ C1)          # (I - D12 D12^+) C1
+    return [q for q in np.linalg.eigvals(At)
+            if q.imag >= 0 and _on_axis(q, axis_rtol) and smin(np.vstack([At - q * np.eye(n), Cp])) <= tol]
+
+
 def check_assumptions(P, nmeas: int, ncon: int, *, rtol: float = 1e-10, axis_rtol: float = 1e-8,
                       raise_on_failure: bool = True) -> AssumptionReport:
     """Check the standard H-infinity assumptions on a generalized plant.
@@ -655,24 +667,16 @@ def check_assumptions(P, nmeas: int, ncon: int, *, rtol: float = 1e-10, axis_rto
                      f"input (in mixed sensitivity, the reference in e = r - y).")
     # (A3) zeros of P12 on the imaginary axis (needs D12 full column rank)
     if r12 == ncon and n:
-        D12p = np.linalg.pinv(D12)
-        At = A - B2 @ D12p @ C1
-        Cp = C1 - D12 @ (D12p @ C1)          # (I - D12 D12^+) C1
-        for q in np.linalg.eigvals(At):
-            if q.imag >= 0 and _on_axis(q, axis_rtol) and smin(np.vstack([At - q * np.eye(n), Cp])) <= tol:
-                fails.append(f"(A3) the block P12 (u -> z) has a zero on the imaginary axis at {_fmt_s(q)}: "
-                             f"[A - jwI, B2; C1, D12] loses column rank (a plant zero or an undamped pole/zero "
-                             f"of Wp/Wt/Wu there).")
+        for q in _axis_zeros(A, B2, C1, D12, axis_rtol, tol, smin):
+            fails.append(f"(A3) the block P12 (u -> z) has a zero on the imaginary axis at {_fmt_s(q)}: "
+                         f"[A - jwI, B2; C1, D12] loses column rank (a plant zero or an undamped pole/zero "
+                         f"of Wp/Wt/Wu there).")
     # (A4) zeros of P21 on the imaginary axis (needs D21 full row rank)
-    if r21 == nmeas and n:
-        D21p = np.linalg.pinv(D21)
-        Ah = A - B1 @ D21p @ C2
-        Bp = B1 - (B1 @ D21p) @ D21          # B1 (I - D21^+ D21)
-        for q in np.linalg.eigvals(Ah):
-            if q.imag >= 0 and _on_axis(q, axis_rtol) and smin(np.hstack([Ah - q * np.eye(n), Bp])) <= tol:
-                fails.append(f"(A4) the block P21 (w -> v) has a zero on the imaginary axis at {_fmt_s(q)}: "
-                             f"[A - jwI, B1; C2, D21] loses row rank. In mixed sensitivity this is a plant or "
-                             f"weight pole on the imaginary axis (e.g. an integrator in Wp or in G).")
+    if r21 == nmeas and n:      # the dual of (A3): [A - jwI, B1; C2, D21]^T
+        for q in _axis_zeros(A.T, C2.T, B1.T, D21.T, axis_rtol, tol, smin):
+            fails.append(f"(A4) the block P21 (w -> v) has a zero on the imaginary axis at {_fmt_s(q)}: "
+                         f"[A - jwI, B1; C2, D21] loses row rank. In mixed sensitivity this is a plant or "
+                         f"weight pole on the imaginary axis (e.g. an integrator in Wp or in G).")
     report = AssumptionReport(ok=not fails, failures=tuple(fails))
     if fails and raise_on_failure:
         raise ValueError(report.message)
@@ -781,8 +785,9 @@ def damping_loop(G, zeta_added: float = 0.1, *, mode_hz: float | None = None, lo
     if not (math.isfinite(f1) and f1 > 0):
         raise ValueError(f"mode_hz: expected a positive frequency in Hz, got {mode_hz!r}")
     G0 = _dc_gain(G)
-    if np.linalg.cond(G0) > 1e8:
-        raise ValueError(f"G: DC gain is singular (condition number {np.linalg.cond(G0):.3g}); cannot decouple")
+    cond = np.linalg.cond(G0)
+    if cond > 1e8:
+        raise ValueError(f"G: DC gain is singular (condition number {cond:.3g}); cannot decouple")
     w1, wf = 2 * np.pi * f1, 2 * np.pi * float(lowpass_hz)
     c = 2.0 * float(zeta_added) / w1
     n = G.noutputs
@@ -916,6 +921,26 @@ def _analyse(G, K, f, S_ss=None) -> LoopAnalysis:
                         sigma_S=sS, sigma_T=sT, sigma_KS=sKS, T_f=Tf, min_damping=zmin, min_damping_hz=zmin_hz)
 
 
+def stack_inputs(K, Ky):
+    """``[K, Ky]`` with inputs ``[e; y]`` and summed outputs (block-diagonal states);
+    continuous or discrete (``K.dt``)."""
+    from scipy.linalg import block_diag
+    A = block_diag(np.asarray(K.A), np.asarray(Ky.A))
+    B = block_diag(np.asarray(K.B), np.asarray(Ky.B))
+    C = np.hstack([np.asarray(K.C), np.asarray(Ky.C)])
+    D = np.hstack([np.asarray(K.D), np.asarray(Ky.D)])
+    return _ct().ss(A, B, C, D, K.dt)
+
+
+def feedback_operator(K2, n_error: int):
+    """Error-sign feedback operator ``K - Ky`` of a stacked ``[K, Ky]`` (``u = K r - (K - Ky) y``);
+    ``K2`` itself if it has no measurement inputs."""
+    if K2.ninputs == n_error:
+        return K2
+    B, D = np.asarray(K2.B), np.asarray(K2.D)
+    return _ct().ss(K2.A, B[:, :n_error] - B[:, n_error:], K2.C, D[:, :n_error] - D[:, n_error:], K2.dt)
+
+
 @dataclass(frozen=True, eq=False)
 class Design:
     """Result of :func:`design_hinf` (paper Sec. 4.2, Figs. 11-13, 18, 21-22).
@@ -989,19 +1014,11 @@ class Design:
 
     def feedback_controller(self):
         """``u = -K_fb y`` part of the loop (``K - Ky``; ``K`` without damping), error sign."""
-        if self.damping is None:
-            return self.K
-        return _ct().parallel(self.K, -self.damping.Ky)
+        return feedback_operator(self.controller_2dof(), self.K.ninputs)
 
     def controller_2dof(self):
         """``[K, Ky]``: inputs ``[e; y]`` (sensor V) -> ``u`` (controller V); ``K`` without damping."""
-        if self.damping is None:
-            return self.K
-        ct = _ct()
-        K, Ky = self.K, self.damping.Ky
-        from scipy.linalg import block_diag
-        return ct.ss(block_diag(np.asarray(K.A), np.asarray(Ky.A)), block_diag(np.asarray(K.B), np.asarray(Ky.B)),
-                     np.hstack([np.asarray(K.C), np.asarray(Ky.C)]), np.hstack([np.asarray(K.D), np.asarray(Ky.D)]))
+        return self.K if self.damping is None else stack_inputs(self.K, self.damping.Ky)
 
     # convenience accessors (paper quantities)
     @property
@@ -1757,27 +1774,16 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
         # Tustin (per-mode prewarp) maps s = 0 to z = 1, so Ky_d(1) = Ky(0) = 0 exactly: a constant
         # reading (the Z probe's offset at home) must not leak into u through the damping loop.
         disc_y = discretize_controller(dl.Ky, dt, "tustin_modal")
-        from scipy.linalg import block_diag
-        Kd2 = ct.ss(block_diag(np.asarray(disc.Kd.A), np.asarray(disc_y.Kd.A)),
-                    block_diag(np.asarray(disc.Kd.B), np.asarray(disc_y.Kd.B)),
-                    np.hstack([np.asarray(disc.Kd.C), np.asarray(disc_y.Kd.C)]),
-                    np.hstack([np.asarray(disc.Kd.D), np.asarray(disc_y.Kd.D)]), dt)
+        Kd2 = stack_inputs(disc.Kd, disc_y.Kd)
     timings["discretization_s"] = time.perf_counter() - t
     say(f"discretized at {1 / dt:.0f} Hz with {disc.method}: max rel. error below {disc.f_check_hz:.0f} Hz "
         f"= {disc.max_rel_error:.3g} (Tustin: {disc.tustin_max_rel_error:.3g})")
     Gd = Gd_full if (Gd_full is not None and abs(Gd_full.dt - dt) <= 1e-12 * dt) else ct.c2d(G_full, dt, "zoh")
     ny = G_full.noutputs
-
-    def feedback_part(Kx):       # error-sign feedback operator K - Ky of [K, Ky]
-        if dl is None:
-            return Kx
-        B, D = np.asarray(Kx.B), np.asarray(Kx.D)
-        return ct.ss(Kx.A, B[:, :ny] - B[:, ny:], Kx.C, D[:, :ny] - D[:, ny:], Kx.dt)
-
-    stable_d, rho_d = discrete_closed_loop(Gd, feedback_part(Kd2))
+    stable_d, rho_d = discrete_closed_loop(Gd, feedback_operator(Kd2, ny))
     stable_d_tustin = None
     if disc.method != "tustin":
-        stable_d_tustin = discrete_closed_loop(Gd, feedback_part(ct.c2d(K2, dt, "tustin")))[0]
+        stable_d_tustin = discrete_closed_loop(Gd, feedback_operator(ct.c2d(K2, dt, "tustin"), ny))[0]
 
     # --- uncertainty summary (paper Fig. 10 statements)
     fe = analysis_grid_hz([G_full, red.G_reduced], 1.0, 2000.0, 1500)

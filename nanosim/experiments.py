@@ -109,21 +109,19 @@ def run_closed_loop(stage, controller: DiscreteController, ref_um: np.ndarray, *
     """Run the loop on ``ref_um`` (N, 3); with ``settle`` first move to ref_um[0] from home."""
     ref_um = np.asarray(ref_um, float)
     y = stage.sensors.step(stage.table_um).reading_V if hasattr(stage, "sensors") else np.zeros(3)
-    two_dof = getattr(controller, "two_dof", False)
     if settle:
-        if two_dof:
+        if controller.two_dof:      # damping-loop states at equilibrium with the home reading
             controller.reset(measurement_V=y)
         n = int(settle_s * FS)
         start = y * UM_PER_V
         w = raised_cosine(n, 0.6)
         pre = start + w[:, None] * (ref_um[0] - start)
         for r in pre:
-            y = stage.step(controller.step(r / UM_PER_V - y, y) if two_dof else controller.step(r / UM_PER_V - y))
+            y = stage.step(controller.feedback(r / UM_PER_V, y))
     n = len(ref_um)
     ys, tb, us, sat = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3), bool)
     for k in range(n):
-        e = ref_um[k] / UM_PER_V - y
-        u = controller.step(e, y) if two_dof else controller.step(e)
+        u = controller.feedback(ref_um[k] / UM_PER_V, y)
         ys[k] = y * UM_PER_V
         tb[k] = stage.table_um
         us[k] = u

@@ -409,11 +409,7 @@ class ViewerApp:
             item = self._pending.popleft()
             if item == "reset":
                 self.sim.reset()
-                self._hist[:] = np.nan
-                self._hist_n = 0
-                self._trail.clear()
-                self._wave_t0 = 0.0
-                self._pace_reset = True
+                self._clear_traces()
             elif item == "wave_t0":
                 self._wave_t0 = self.sim.time_s
             elif item[0] == "controller":
@@ -432,13 +428,18 @@ class ViewerApp:
         name = "MuJoCo (nonlinear)" if self.sim.physics == "mujoco" else "linearized MuJoCo"
         return name + (f" - {self.physics_note}" if self.physics_note else "")
 
+    def _clear_traces(self) -> None:
+        """After the simulation restarts at t = 0: empty plots and trail, restart pacing."""
+        self._hist[:] = np.nan
+        self._hist_n = 0
+        self._trail.clear()
+        self._wave_t0 = 0.0
+        self._pace_reset = True
+
     def _switch_physics(self, physics: str) -> None:
         if physics != self.sim.physics:
             self.sim.set_physics(physics)
-            self._hist[:] = np.nan
-            self._hist_n = 0
-            self._trail.clear()
-            self._wave_t0 = 0.0
+            self._clear_traces()
         self._pace_reset = True
 
     def _auto_physics(self, now: float) -> None:

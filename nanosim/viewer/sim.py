@@ -142,12 +142,8 @@ class LiveSim:
 
     def reset_controller(self) -> None:
         """Zero the controller state (a damping loop starts at equilibrium with the current reading)."""
-        if self.controller is None:
-            return
-        if self.controller.two_dof:
-            self.controller.reset(measurement_V=self.y_V)
-        else:
-            self.controller.reset()
+        if self.controller is not None:
+            self.controller.reset_at(self.y_V)
 
     def _home_reading_V(self) -> np.ndarray:
         d = home_data(self.model)
@@ -173,11 +169,8 @@ class LiveSim:
         """One control period toward ``ref_um`` (3,, from home); returns measured um from home (3,)."""
         self.ref_um = np.asarray(ref_um, float)
         if self.controller_on and self.controller is not None:
-            e = self.ref_um / C.SENSOR_UM_PER_V + self.y_home_V - self.y_V
-            if self.controller.two_dof:
-                self.u_V = np.asarray(self.controller.step(e, self.y_V), float)
-            else:
-                self.u_V = np.asarray(self.controller.step(e), float)
+            r_V = self.ref_um / C.SENSOR_UM_PER_V + self.y_home_V
+            self.u_V = np.asarray(self.controller.feedback(r_V, self.y_V), float)
         else:
             self.u_V = self.G0inv @ self.ref_um
         self.y_V = np.asarray(self.stage.step(self.u_V), float)
