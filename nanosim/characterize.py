@@ -53,7 +53,7 @@ def fig_hysteresis(r: E.HysteresisResult, path):
     ax[1].set_xlabel("X reference (um)")
     ax[1].set_ylabel("X output - reference (nm)")
     ax[1].set_title(f"(b) closed loop: settled hysteresis {r.closed_loop_nm:.1f} nm, ramp lag {r.closed_ramp_lag_nm:.0f} nm")
-    ax[1].legend(fontsize=8)
+    ax[1].legend(fontsize=8, loc="center", bbox_to_anchor=(0.5, 0.7))   # in the empty band above the settled points
     ax[1].grid(alpha=0.3)
     fig.tight_layout()
     return save_figure(fig, path)
