@@ -11,8 +11,8 @@ import numpy as np
 
 
 def _cmd_modes(args) -> int:
-    from .model import load_model
-    from .modes import modal_analysis, modes_json, plot_mode_shapes
+    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.modes import modal_analysis, modes_json, plot_mode_shapes
 
     model = load_model(args.mjcf)
     if args.plot:
@@ -37,7 +37,7 @@ def _cmd_modes(args) -> int:
 
 
 def _cmd_pipeline(args) -> int:
-    from ._io import write_json
+    from nanosim.fileio import write_json
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -64,9 +64,9 @@ def _cmd_pipeline(args) -> int:
 
 
 def _stage_modes(args, out: Path) -> None:
-    from ._io import write_json
-    from .model import load_model
-    from .modes import modes_json, modal_analysis, plot_mode_shapes
+    from nanosim.fileio import write_json
+    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.modes import modes_json, modal_analysis, plot_mode_shapes
 
     model = load_model(args.mjcf)
     write_json(out / "modes.json", modes_json(model))
@@ -74,9 +74,9 @@ def _stage_modes(args, out: Path) -> None:
 
 
 def _twin_npz(out: Path, mjcf=None) -> Path:
-    from ._io import write_npz
-    from .linear import linearize
-    from .stage import Stage, StageConfig
+    from nanosim.fileio import write_npz
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.stage import Stage, StageConfig
 
     tw = linearize(Stage(config=StageConfig.ideal(), mjcf=mjcf))
     s = tw.sys_V
@@ -86,10 +86,10 @@ def _twin_npz(out: Path, mjcf=None) -> Path:
 
 
 def _stage_identify(args, out: Path) -> None:
-    from .identify import run_identify
-    from .linear import linearize
-    from .model import load_model
-    from .stage import Stage, StageConfig
+    from nanosim.pipeline.identify import run_identify
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.stage import Stage, StageConfig
 
     model = load_model(args.mjcf)
     twin = linearize(Stage(config=StageConfig.ideal(), model=model))
@@ -119,7 +119,7 @@ def _add_design_arguments(parser) -> None:
 
 
 def _stage_design(args, out: Path) -> None:
-    from .design import run_design
+    from nanosim.design.legacy import run_design
 
     model = getattr(args, "model", None) or out / "model.npz"
     paper = getattr(args, "paper_design", False)
@@ -132,7 +132,7 @@ def _stage_design(args, out: Path) -> None:
 
 
 def _stage_characterize(args, out: Path) -> None:
-    from .characterize import run_characterize
+    from nanosim.pipeline.characterize import run_characterize
 
     controller = getattr(args, "controller", None) or out / "controller.npz"
     run_characterize(controller, out, seed=args.seed, only=getattr(args, "only", None),
@@ -141,14 +141,14 @@ def _stage_characterize(args, out: Path) -> None:
 
 def _stage_characterize_twin(args, out: Path) -> None:
     """The same experiments on the linear twin (same code path), into DIR/twin/."""
-    from .characterize import run_characterize
+    from nanosim.pipeline.characterize import run_characterize
 
     run_characterize(out / "controller.npz", out / "twin", seed=args.seed, twin=True, mjcf=args.mjcf,
                      progress=True)
 
 
 def _stage_report(args, out: Path) -> None:
-    from .report import write_report
+    from nanosim.pipeline.report import write_report
 
     write_report(out)
 
@@ -210,7 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_design_arguments(pl)
     pl.set_defaults(func=_cmd_pipeline)
     try:
-        from .viewer import add_view_arguments, run_view
+        from nanosim.viewer import add_view_arguments, run_view
     except Exception:  # viewer optional at import time
         add_view_arguments = None
     if add_view_arguments is not None:

@@ -9,7 +9,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from nanosim import constants as C
-from nanosim._io import write_npz
+from nanosim.fileio import write_npz
 
 
 def run(*args, check=True):
@@ -53,9 +53,9 @@ def test_malformed_mjcf_is_one_line(tmp_path):
 
 
 def test_same_seed_same_numbers(tmp_path):
-    from nanosim.design import design_hinf, discretize_controller, reduce_model
-    from nanosim.linear import linearize
-    from nanosim.stage import Stage, StageConfig
+    from nanosim.design.legacy import design_hinf, discretize_controller, reduce_model
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.stage import Stage, StageConfig
 
     twin = linearize(Stage(config=StageConfig.ideal()))
     d = design_hinf(reduce_model(twin.sys_V, order=10).G_reduced)

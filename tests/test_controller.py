@@ -6,8 +6,8 @@ import time
 import numpy as np
 import pytest
 
-from nanosim import _io
-from nanosim.controller import ControllerConfig, DiscreteController
+from nanosim import fileio
+from nanosim.design.controller import ControllerConfig, DiscreteController
 
 DT = 1 / 4000
 
@@ -32,7 +32,7 @@ def reference_response(A, B, C, D, E):
 @pytest.fixture()
 def npz_path(tmp_path):
     A, B, C, D = random_controller()
-    return _io.write_npz(tmp_path / "controller.npz", Akd=A, Bkd=B, Ckd=C, Dkd=D, dt=DT,
+    return fileio.write_npz(tmp_path / "controller.npz", Akd=A, Bkd=B, Ckd=C, Dkd=D, dt=DT,
                          Ak=np.zeros((5, 5)), units=np.array(["sensor V in", "controller V out"])), (A, B, C, D)
 
 
@@ -89,7 +89,7 @@ def test_missing_file_and_keys(tmp_path):
     with pytest.raises(FileNotFoundError):
         DiscreteController.from_npz(tmp_path / "none.npz")
     A, B, C, D = random_controller()
-    _io.write_npz(tmp_path / "nokey.npz", Akd=A, Bkd=B, Ckd=C, dt=DT)
+    fileio.write_npz(tmp_path / "nokey.npz", Akd=A, Bkd=B, Ckd=C, dt=DT)
     with pytest.raises(ValueError, match="Dkd"):
         DiscreteController.from_npz(tmp_path / "nokey.npz")
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
@@ -108,7 +108,7 @@ def test_bad_shapes(tmp_path, mutate, match):
     A, B, C, D = random_controller()
     m = dict(Akd=A, Bkd=B, Ckd=C, Dkd=D, dt=DT)
     mutate(m)
-    _io.write_npz(tmp_path / "bad.npz", **m)
+    fileio.write_npz(tmp_path / "bad.npz", **m)
     with pytest.raises(ValueError, match=match):
         DiscreteController.from_npz(tmp_path / "bad.npz")
 
@@ -143,8 +143,8 @@ def test_closed_loop_tracking_with_designed_controller():
     a step reference is tracked (confirms u = +K e with e = r - y in the time domain)."""
     ct = pytest.importorskip("control")
     pytest.importorskip("slycot")
-    from nanosim import design
-    from nanosim.weights import Weights, WeightSpec
+    from nanosim.design import legacy as design
+    from nanosim.design.weights import Weights, WeightSpec
     s = ct.tf("s")
     g = ct.ss(200 / ((10 * s + 1) * (0.05 * s + 1) ** 2))       # Skogestad & Postlethwaite Ex. 2.11
     G = ct.append(g, g, g)

@@ -8,9 +8,9 @@ from numpy.testing import assert_allclose
 
 control = pytest.importorskip("control")
 pytest.importorskip("slycot")
-from nanosim import _io  # noqa: E402
-from nanosim import design as D  # noqa: E402
-from nanosim.controller import DiscreteController  # noqa: E402
+from nanosim import fileio  # noqa: E402
+from nanosim.design import legacy as D  # noqa: E402
+from nanosim.design.controller import DiscreteController  # noqa: E402
 from test_design import paper_like_plant  # noqa: E402
 
 ct = control
@@ -110,7 +110,7 @@ def test_damping_loop_damps_first_modes_keeps_bandwidth(designs):
 def test_run_design_two_dof_controller_rings_less(tmp_path):
     G = paper_like_plant()
     Gd = ct.c2d(G, 1 / 4000, "zoh")
-    model = _io.write_npz(tmp_path / "model.npz", A=G.A, B=G.B, C=G.C, D=G.D,
+    model = fileio.write_npz(tmp_path / "model.npz", A=G.A, B=G.B, C=G.C, D=G.D,
                           Ad=Gd.A, Bd=Gd.B, Cd=Gd.C, Dd=Gd.D, dt=1 / 4000)
     ring = {}
     for name, zeta in (("single", None), ("damped", 0.1)):

@@ -21,8 +21,8 @@ control = pytest.importorskip("control")
 pytest.importorskip("slycot")
 
 from nanosim import constants  # noqa: E402
-from nanosim import design as D  # noqa: E402
-from nanosim.weights import PAPER_WEIGHTS, Weights, WeightSpec  # noqa: E402
+from nanosim.design import legacy as D  # noqa: E402
+from nanosim.design.weights import PAPER_WEIGHTS, Weights, WeightSpec  # noqa: E402
 
 ct = control
 
@@ -380,10 +380,10 @@ def test_discretization_tustin_smooth_controller():
 def test_run_design_artifacts(tmp_path):
     from scipy.io import loadmat
 
-    from nanosim import _io
+    from nanosim import fileio
     G = paper_like_plant()
     Gd = ct.c2d(G, 1 / 4000, "zoh")
-    model = _io.write_npz(tmp_path / "model.npz", A=G.A, B=G.B, C=G.C, D=G.D,
+    model = fileio.write_npz(tmp_path / "model.npz", A=G.A, B=G.B, C=G.C, D=G.D,
                           Ad=Gd.A, Bd=Gd.B, Cd=Gd.C, Dd=Gd.D, dt=1 / 4000)
     out = tmp_path / "out"
     d = D.run_design(model, out, progress=False)
@@ -404,7 +404,7 @@ def test_run_design_artifacts(tmp_path):
     m = loadmat(out / "design.mat")
     assert m["K_A"].shape == (19, 19) and m["G_A"].shape == (39, 39)
     # time domain: the exported 4 kHz controller on the ZOH full plant tracks a 2 um X step
-    from nanosim.controller import DiscreteController
+    from nanosim.design.controller import DiscreteController
     ctrl = DiscreteController.from_npz(out / "controller.npz")
     x = np.zeros(Gd.nstates)
     r = np.array([0.4, 0.0, 0.0])                       # 0.4 sensor V = 2 um on X
@@ -430,7 +430,7 @@ def test_run_design_artifacts(tmp_path):
 def test_run_design_missing_model(tmp_path):
     with pytest.raises(FileNotFoundError):
         D.run_design(tmp_path / "nope.npz", tmp_path / "out", progress=False)
-    from nanosim import _io
-    _io.write_npz(tmp_path / "bad.npz", A=np.eye(2), B=np.ones((2, 1)))
+    from nanosim import fileio
+    fileio.write_npz(tmp_path / "bad.npz", A=np.eye(2), B=np.ones((2, 1)))
     with pytest.raises(ValueError, match="missing"):
         D.run_design(tmp_path / "bad.npz", tmp_path / "out", progress=False)

@@ -6,9 +6,9 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from nanosim import constants as C
-from nanosim.electronics import (ActuatorChain, ElectronicsConfig, SensorChain, child_seed,
+from nanosim.plant.electronics import (ActuatorChain, ElectronicsConfig, SensorChain, child_seed,
                                  quantize)
-from nanosim.piezo import PiezoConfig, loop_hysteresis_percent
+from nanosim.plant.piezo import PiezoConfig, loop_hysteresis_percent
 
 LSB_V = 20.0 / 2 ** 16
 

@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from nanosim import experiments as E
-from nanosim.controller import DiscreteController
-from nanosim.linear import linearize
-from nanosim.stage import Stage, StageConfig
+from nanosim.experiments import section5 as E
+from nanosim.design.controller import DiscreteController
+from nanosim.plant.linearize import linearize
+from nanosim.plant.stage import Stage, StageConfig
 
 
 def test_step_metrics_of_a_second_order_response():
@@ -45,7 +45,7 @@ def test_contour_reference_is_the_45_degree_line_at_the_given_speed():
 @pytest.fixture(scope="module")
 def simple_controller():
     """The paper's mixed-sensitivity design on the reduced linear twin (no identification needed)."""
-    from nanosim.design import design_hinf, discretize_controller, reduce_model
+    from nanosim.design.legacy import design_hinf, discretize_controller, reduce_model
 
     twin = linearize(Stage(config=StageConfig.ideal()))
     red = reduce_model(twin.sys_V, order=10)

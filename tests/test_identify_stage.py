@@ -4,9 +4,9 @@ import pytest
 from numpy.testing import assert_allclose
 
 import identification as ident
-from nanosim.identify import IdentifySettings, assemble, identify_stage
-from nanosim.model import load_model
-from nanosim.modes import modal_analysis
+from nanosim.pipeline.identify import IdentifySettings, assemble, identify_stage
+from nanosim.plant.mjcf import load_model
+from nanosim.plant.modes import modal_analysis
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from nanosim.piezo import (KelvinVoigtCreep, PiezoConfig, PiezoModel, PrandtlIshlinskii,
+from nanosim.plant.piezo import (KelvinVoigtCreep, PiezoConfig, PiezoModel, PrandtlIshlinskii,
                            loop_hysteresis_percent)
 
 FS_HZ = 4000.0

@@ -1,7 +1,7 @@
 """report.md / report.html from a run folder's json files."""
 import json
 
-from nanosim.report import write_report
+from nanosim.pipeline.report import write_report
 
 
 def test_report_marks_bands_and_names_the_paper(tmp_path):

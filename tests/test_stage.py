@@ -6,11 +6,11 @@ from numpy.testing import assert_allclose
 from scipy.signal import max_len_seq
 
 from nanosim import constants as C
-from nanosim.electronics import ElectronicsConfig
-from nanosim.linear import linearize
-from nanosim.modes import modal_analysis
-from nanosim.piezo import PiezoConfig, loop_hysteresis_percent
-from nanosim.stage import Stage, StageConfig, run_open_loop_batch
+from nanosim.plant.electronics import ElectronicsConfig
+from nanosim.plant.linearize import linearize
+from nanosim.plant.modes import modal_analysis
+from nanosim.plant.piezo import PiezoConfig, loop_hysteresis_percent
+from nanosim.plant.stage import Stage, StageConfig, run_open_loop_batch
 
 PAPER_SIGMA_OPEN_NM = 11.4          # paper Sec. 5, Fig. 16
 

@@ -8,11 +8,11 @@ from numpy.testing import assert_allclose
 from scipy.optimize import linprog
 
 from nanosim import constants as C
-from nanosim.mechanics import mechanical_matrices, reduced_modes
-from nanosim.model import DEFAULT_MJCF, load_model
-from nanosim.modes import constraint_violation_ratio, linearize_fd, modal_analysis, volts_to_force_N
+from nanosim.plant.mechanics import mechanical_matrices, reduced_modes
+from nanosim.plant.mjcf import DEFAULT_MJCF, load_model
+from nanosim.plant.modes import constraint_violation_ratio, linearize_fd, modal_analysis, volts_to_force_N
 
-MJCF_DIR = Path(__file__).resolve().parent.parent / "mjcf"
+MJCF_DIR = Path(__file__).resolve().parent.parent / "nanosim" / "mjcf"
 # paper Sec. 3 (Fig. 5): modes and their axes
 PAPER_MODES = [(175.0, "XY"), (179.0, "XY"), (245.0, "Z"), (460.0, "XY"), (474.0, "XY"), (740.0, "Z")]
 

@@ -8,8 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from nanosim.model import load_model
-from nanosim.modes import modal_analysis, volts_to_force_N
+from nanosim.plant.mjcf import load_model
+from nanosim.plant.modes import modal_analysis, volts_to_force_N
 from nanosim.viewer import add_view_arguments, port_is_free, run_view
 from nanosim.viewer import scene as sc
 from nanosim.viewer import waveforms as wf
@@ -106,7 +106,7 @@ def test_closure_at_10000x_mode_shape(model):
 
 
 def test_small_exaggeration_is_linear(model):
-    from nanosim.mechanics import mechanical_matrices
+    from nanosim.plant.mechanics import mechanical_matrices
     dq = static_deflection_q(model, np.array([0.0, volts_to_force_N(), 0.0]))
     dq *= 1e-6 / table_displacement_m(model, dq)                                 # table moves 1 um
     ex = Exaggerator(model)
@@ -195,10 +195,10 @@ def test_busy_port(capsys):
 
 def test_live_closed_loop_tracks_a_reference(tmp_path):
     """The viewer's physics thread runs the H-infinity loop (controller.npz) on the stage."""
-    from nanosim._io import write_npz
-    from nanosim.design import design_hinf, discretize_controller, reduce_model
-    from nanosim.linear import linearize
-    from nanosim.stage import Stage, StageConfig
+    from nanosim.fileio import write_npz
+    from nanosim.design.legacy import design_hinf, discretize_controller, reduce_model
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.stage import Stage, StageConfig
     from nanosim.viewer.sim import LiveSim, load_controller
 
     twin = linearize(Stage(config=StageConfig.ideal()))
@@ -222,7 +222,7 @@ def test_linear_physics_follows_mujoco():
         y = np.array([sim.step(ref) for _ in range(400)])                # 0.1 s
         out[ph] = (y, sim.qpos)
     (y_mj, q_mj), (y_lin, q_lin) = out["mujoco"], out["linear"]
-    from nanosim.mechanics import home_data
+    from nanosim.plant.mechanics import home_data
     q0 = home_data(sims["mujoco"].model).qpos
     peak = np.abs(y_mj).max()
     np.testing.assert_allclose(y_lin, y_mj, atol=0.02 * peak)            # probes within 2 % of the stroke

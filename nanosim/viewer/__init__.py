@@ -45,7 +45,7 @@ def run_view(args) -> int:
         print(f"view: port must be 1..65535, got {port}", file=sys.stderr)
         return 2
     try:
-        from .server import ViewerApp
+        from nanosim.viewer.server import ViewerApp
         app = ViewerApp(model_path=args.mjcf, controller_path=args.controller, host=host, port=port,
                         physics=getattr(args, "physics", "auto"))
     except (FileNotFoundError, ValueError) as exc:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from ..mechanics import home_data, mechanical_matrices
+from nanosim.plant.mechanics import home_data, mechanical_matrices
 
 LINK_LENGTH_M = 0.020   # typical link length, the yardstick for closure errors
 

@@ -37,7 +37,7 @@ def wait_until(cond, timeout=30.0, poll=0.01) -> bool:
 def main(outdir="docs") -> int:
     from playwright.sync_api import sync_playwright
 
-    from .server import ViewerApp
+    from nanosim.viewer.server import ViewerApp
 
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)

@@ -16,12 +16,12 @@ import numpy as np
 import viser
 import viser.uplot as uplot
 
-from ..model import load_model
-from ..modes import modal_analysis
-from . import scene as sc
-from .exaggerate import Exaggerator, table_displacement_m
-from .sim import LiveSim, load_controller
-from .waveforms import PRESETS, Waveform
+from nanosim.plant.mjcf import load_model
+from nanosim.plant.modes import modal_analysis
+from nanosim.viewer import scene as sc
+from nanosim.viewer.exaggerate import Exaggerator, table_displacement_m
+from nanosim.viewer.sim import LiveSim, load_controller
+from nanosim.viewer.waveforms import PRESETS, Waveform
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 AXES = "XYZ"

@@ -11,14 +11,14 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .. import constants as C
-from ..mechanics import home_data
-from ..model import load_model
-from ..model import probe_readings_um
-from ..modes import modal_analysis, volts_to_force_N
+from nanosim import constants as C
+from nanosim.plant.mechanics import home_data
+from nanosim.plant.mjcf import load_model
+from nanosim.plant.mjcf import probe_readings_um
+from nanosim.plant.modes import modal_analysis, volts_to_force_N
 
 try:  # the stage simulator (electronics, piezo hysteresis, noise)
-    from ..stage import Stage, StageConfig
+    from nanosim.plant.stage import Stage, StageConfig
 except Exception:  # noqa: BLE001 - any import problem -> fallback
     Stage = StageConfig = None
 
@@ -29,7 +29,7 @@ def load_controller(path):
     if not p.is_file():
         raise FileNotFoundError(f"controller: no such file {str(p)!r} (expected a .npz from the synthesis step)")
     try:
-        from ..controller import DiscreteController
+        from nanosim.design.controller import DiscreteController
     except Exception as exc:  # noqa: BLE001
         raise ValueError(f"controller: nanosim.controller is not available ({exc})") from None
     try:
@@ -113,13 +113,13 @@ class LiveSim:
 
     def _linear_twin(self):
         if self._twin is None:
-            from ..linear import linearize
+            from nanosim.plant.linearize import linearize
             self._twin = linearize(Stage(config=StageConfig.ideal(), model=self.model), with_qpos=True)
         return self._twin
 
     def _make_stage(self):
         if self.physics == "linear":
-            from ..experiments import TwinStage
+            from nanosim.experiments.section5 import TwinStage
             cfg = StageConfig() if self.realistic else StageConfig.ideal()
             home = home_data(self.model)
             self.stage = TwinStage(self._linear_twin(), seed=self.seed, config=cfg,

@@ -31,7 +31,7 @@ pytest.importorskip("pytest_benchmark")
 
 from scipy.linalg import solve_continuous_are  # noqa: E402
 
-from nanosim import design as D  # noqa: E402
+from nanosim.design import legacy as D  # noqa: E402
 
 
 def _paper_like_plant():

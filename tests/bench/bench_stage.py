@@ -10,8 +10,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from nanosim.mechanics import home_data
-from nanosim.stage import Stage
+from nanosim.plant.mechanics import home_data
+from nanosim.plant.stage import Stage
 
 SIM_S = 1.0
 

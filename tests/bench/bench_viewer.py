@@ -20,8 +20,8 @@ import numpy as np
 
 
 def bare_mujoco_rtf(seconds: float = 1.0) -> float:
-    from nanosim.mechanics import home_data
-    from nanosim.model import load_model
+    from nanosim.plant.mechanics import home_data
+    from nanosim.plant.mjcf import load_model
     m = load_model()
     d = home_data(m)
     n_sub = int(round(2.5e-4 / m.opt.timestep))

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import constants as C
-from ._io import write_text
+from nanosim import constants as C
+from nanosim.fileio import write_text
 
 # (section, label, paper value, unit, getter on the run's json dicts, acceptance test, band text)
 PAPER = {

@@ -16,10 +16,10 @@ import numpy as np
 
 import identification as ident
 
-from . import constants as C
-from ._io import save_figure, write_json, write_npz
-from ._ramps import raised_cosine
-from .stage import StageConfig, Trace, run_open_loop_batch
+from nanosim import constants as C
+from nanosim.fileio import save_figure, write_json, write_npz
+from nanosim.ramps import raised_cosine
+from nanosim.plant.stage import StageConfig, Trace, run_open_loop_batch
 
 AXES, ACTS = C.AXES, C.ACTUATORS
 

@@ -22,9 +22,9 @@ import control as ct
 import numpy as np
 import scipy.linalg as sla
 
-from . import constants as C
-from .mechanics import mechanical_matrices
-from .modes import linearize_fd, volts_to_force_N
+from nanosim import constants as C
+from nanosim.plant.mechanics import mechanical_matrices
+from nanosim.plant.modes import linearize_fd, volts_to_force_N
 
 
 @dataclass(frozen=True)

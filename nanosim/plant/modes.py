@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from . import constants as C
-from ._ramps import raised_cosine
-from .mechanics import home_data, mechanical_matrices
+from nanosim import constants as C
+from nanosim.ramps import raised_cosine
+from nanosim.plant.mechanics import home_data, mechanical_matrices
 
 CONSTRAINT_RATIO = 0.05
 
@@ -230,7 +230,7 @@ def plot_mode_shapes(model: mujoco.MjModel, result: ModalResult, out_dir, fmax_h
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ._io import save_figure
+    from nanosim.fileio import save_figure
 
     paths = []
     home = posed_data(model, np.zeros(model.nv), 0.0)

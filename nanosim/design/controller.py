@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nanosim import _io
+from nanosim import fileio
 
 __all__ = ["ControllerConfig", "DiscreteController"]
 
@@ -182,7 +182,7 @@ class DiscreteController:
             Not a readable ``.npz``, missing keys, or inconsistent shapes / values.
         """
         path = Path(path)
-        data = _io.load_npz(path, required=_REQUIRED)
+        data = fileio.load_npz(path, required=_REQUIRED)
         extra = {k: data[k] for k in _OPTIONAL if k in data}
         try:
             return cls(ControllerConfig(*(data[k] for k in _REQUIRED), **extra))

@@ -14,10 +14,10 @@ import mujoco
 import numpy as np
 from scipy.optimize import least_squares
 
-from . import constants as C
-from .build_mjcf import DEFAULT_PARAMS, StageParams, stage_xml
-from .mechanics import mechanical_matrices, reduced_modes, static_compliance
-from .modes import modal_analysis
+from nanosim import constants as C
+from nanosim.plant.build import DEFAULT_PARAMS, StageParams, stage_xml
+from nanosim.plant.mechanics import mechanical_matrices, reduced_modes, static_compliance
+from nanosim.plant.modes import modal_analysis
 
 TARGET_XY_HZ = (175.0, 179.0, 460.0, 474.0)
 TARGET_Z_HZ = (245.0, 740.0)

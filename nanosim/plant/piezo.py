@@ -62,7 +62,7 @@ from typing import Sequence
 import numpy as np
 from scipy.signal import lfilter
 
-from nanosim._validate import as_finite_array
+from nanosim.validation import as_finite_array
 
 __all__ = [
     "PiezoConfig",

@@ -66,8 +66,9 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from nanosim import _io, constants
-from nanosim.weights import PAPER_WEIGHTS, WeightSpec, Weights, paper_weights  # noqa: F401  (re-export)
+from nanosim import constants
+from nanosim import fileio
+from nanosim.design.weights import PAPER_WEIGHTS, WeightSpec, Weights, paper_weights  # noqa: F401  (re-export)
 
 __all__ = [
     "SIGN_CONVENTION", "Weights", "WeightSpec", "PAPER_WEIGHTS", "paper_weights",
@@ -1438,7 +1439,7 @@ def discrete_closed_loop(Gd, Kd):
 
 
 # =====================================================================================
-# figures (matplotlib Figure objects, no pyplot state; saved by nanosim._io.save_figure)
+# figures (matplotlib Figure objects, no pyplot state; saved by nanosim.fileio.save_figure)
 # =====================================================================================
 _IO = ("A", "B", "C")
 _OUT = ("X", "Y", "Z")
@@ -1670,7 +1671,7 @@ def _write_mat(path: Path, data: dict) -> Path:
 
 def _load_model(path, name="model_npz"):
     ct = _ct()
-    z = _io.load_npz(path, required=("A", "B", "C", "D"))
+    z = fileio.load_npz(path, required=("A", "B", "C", "D"))
     A, B, C, D = (np.atleast_2d(np.asarray(z[k], dtype=float)) for k in "ABCD")
     n = A.shape[0]
     if A.shape != (n, n) or B.shape[0] != n or C.shape[1] != n or D.shape != (C.shape[0], B.shape[1]):
@@ -1799,11 +1800,11 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
     units = np.array(["e: tracking error r - y in sensor volts (X,Y,Z), 5 um/V",
                       "u: controller volts for actuators A,B,C (before the x20 amplifier)", *io_units,
                       "dt in seconds"])
-    _io.write_npz(out / "controller.npz", Ak=K2.A, Bk=K2.B, Ck=K2.C, Dk=K2.D,
+    fileio.write_npz(out / "controller.npz", Ak=K2.A, Bk=K2.B, Ck=K2.C, Dk=K2.D,
                   Akd=Kd.A, Bkd=Kd.B, Ckd=Kd.C, Dkd=Kd.D, dt=np.float64(dt), gamma=np.float64(d.gamma),
                   n_error=np.int64(ny), units=units, sign_convention=np.array(SIGN_CONVENTION),
                   method=np.array(disc.method))
-    _io.write_npz(out / "reduced_model.npz", A=red.G_reduced.A, B=red.G_reduced.B, C=red.G_reduced.C,
+    fileio.write_npz(out / "reduced_model.npz", A=red.G_reduced.A, B=red.G_reduced.B, C=red.G_reduced.C,
                   D=red.G_reduced.D, hankel_sv=red.hankel_sv, units=np.array(UNITS["plant_G"]))
     mat = {"G_A": G_full.A, "G_B": G_full.B, "G_C": G_full.C, "G_D": G_full.D,
            "Gr_A": red.G_reduced.A, "Gr_B": red.G_reduced.B, "Gr_C": red.G_reduced.C, "Gr_D": red.G_reduced.D,
@@ -1857,7 +1858,7 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
         summary["versions"] = {"control": _c.__version__, "slycot": _s.__version__, "numpy": np.__version__}
     except Exception:  # pragma: no cover
         pass
-    _io.write_json(out / "design.json", summary)
+    fileio.write_json(out / "design.json", summary)
 
     say("writing figures")
     figs = {
@@ -1871,6 +1872,6 @@ def run_design(model_npz, out_dir, weights: Weights | Mapping | str | os.PathLik
         "fig22_controller_bode.png": plot_controller_bode(d, disc),
     }
     for name, fig in figs.items():
-        _io.save_figure(fig, out / name)
+        fileio.save_figure(fig, out / name)
     say(f"done in {time.perf_counter() - t_start:.1f} s -> {out}")
     return dataclasses.replace(d, reduction=red, discretization=disc)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import constants as C
+from nanosim import constants as C
 
 CHAINS = ("a", "b", "c")
 LEG_AZIMUTH_DEG = (128.5, -111.5, 8.5)       # rows of inv(J), paper Eq. 2
@@ -349,7 +349,7 @@ SCENE_XML = """<mujoco model="pkxyz_scene">
 
 def write_stage_xml(directory: str | Path, params: StageParams = DEFAULT_PARAMS) -> Path:
     """Write ``pkxyz_stage.xml`` and ``scene.xml`` into ``directory``."""
-    from ._io import write_text
+    from nanosim.fileio import write_text
 
     directory = Path(directory)
     write_text(directory / "scene.xml", SCENE_XML)

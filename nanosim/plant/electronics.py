@@ -44,8 +44,8 @@ import numpy as np
 from scipy.signal import lfilter
 
 from nanosim import constants as C
-from nanosim._validate import as_finite_array
-from nanosim.piezo import PiezoConfig, PiezoModel
+from nanosim.validation import as_finite_array
+from nanosim.plant.piezo import PiezoConfig, PiezoModel
 
 __all__ = [
     "ElectronicsConfig",

@@ -17,13 +17,13 @@ from scipy import signal
 
 import identification as ident
 
-from . import constants as C
-from ._ramps import raised_cosine
-from .controller import DiscreteController
-from .design import _crossing as crossing_hz
-from .electronics import ActuatorChain, SensorChain
-from .piezo import loop_hysteresis_percent
-from .stage import StageConfig, Trace
+from nanosim import constants as C
+from nanosim.ramps import raised_cosine
+from nanosim.design.controller import DiscreteController
+from nanosim.design.legacy import _crossing as crossing_hz
+from nanosim.plant.electronics import ActuatorChain, SensorChain
+from nanosim.plant.piezo import loop_hysteresis_percent
+from nanosim.plant.stage import StageConfig, Trace
 
 FS = C.CONTROL_RATE_HZ
 UM_PER_V = C.SENSOR_UM_PER_V

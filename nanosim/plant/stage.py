@@ -15,12 +15,12 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from . import constants as C
-from ._validate import as_finite_array
-from .electronics import ActuatorChain, ElectronicsConfig, SensorChain
-from .mechanics import home_data
-from .model import custom_numeric, load_model, probe_layout
-from .piezo import PiezoConfig
+from nanosim import constants as C
+from nanosim.validation import as_finite_array
+from nanosim.plant.electronics import ActuatorChain, ElectronicsConfig, SensorChain
+from nanosim.plant.mechanics import home_data
+from nanosim.plant.mjcf import custom_numeric, load_model, probe_layout
+from nanosim.plant.piezo import PiezoConfig
 
 
 # The bench electronics. 16-bit DAC spanning the command range [-1, 7.5] V

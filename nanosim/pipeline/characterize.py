@@ -8,13 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from . import constants as C
-from . import experiments as E
-from ._io import save_figure, write_json
-from .controller import DiscreteController
-from .linear import linearize
-from .modes import modal_analysis
-from .stage import Stage, StageConfig
+from nanosim import constants as C
+from nanosim.experiments import section5 as E
+from nanosim.fileio import save_figure, write_json
+from nanosim.design.controller import DiscreteController
+from nanosim.plant.linearize import linearize
+from nanosim.plant.modes import modal_analysis
+from nanosim.plant.stage import Stage, StageConfig
 
 
 def _plt():

@@ -13,8 +13,10 @@ from typing import Mapping
 import mujoco
 import numpy as np
 
-REPO_MJCF_DIR = Path(__file__).resolve().parent.parent / "mjcf"
-DEFAULT_MJCF = REPO_MJCF_DIR / "scene.xml"
+from importlib import resources
+
+MJCF_DIR = Path(str(resources.files("nanosim.mjcf")))
+DEFAULT_MJCF = MJCF_DIR / "scene.xml"
 
 REQUIRED_ACTUATORS = ("piezo_a", "piezo_b", "piezo_c")
 REQUIRED_SITES = ("cube_face_x", "cube_face_y", "cube_face_z", "table_center",
