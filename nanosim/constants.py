@@ -1,4 +1,4 @@
-"""Physical and paper constants, each with its source.
+"""Physical and bench constants, each with its source (paper numbers: :mod:`nanosim.paper`).
 
 Units are in the names. "Controller volts" are the controller's output before
 the x20 piezo amplifier; "sensor volts" are the capacitance-gauge output
@@ -43,9 +43,7 @@ JACOBIAN_J = np.array([[-2.022, -1.190, 3.212],
 # V/V = -6.0 um/V and Fig. 14's -10 um at 1.65 V give the 3.0 scale).
 STATIC_GAIN_SCALE_UM_PER_V = 3.0
 
-# --- identified modes (paper Sec. 3, Fig. 5) --------------------------------
-PAPER_MODES_HZ = (175.0, 179.0, 245.0, 460.0, 474.0, 740.0)
-PAPER_MODE_AXES = ("XY", "XY", "Z", "XY", "XY", "Z")
+AXES = ("XY", "XY", "Z", "XY", "XY", "Z")
 
 # --- paper closed-loop figures (Sec. 4-5) -----------------------------------
 PAPER_GAMMA = 1.34
@@ -53,3 +51,6 @@ PAPER_CONTROLLER_ORDER = 19
 PAPER_FIT_PERCENT = np.array([[95.9, 95.2, 96.1], [90.2, 91.8, 95.0], [95.1, 89.9, 88.5]])
 AXES = ("X", "Y", "Z")
 ACTUATORS = ("A", "B", "C")
+
+# Back-compatible names for the paper figures that describe the plant.
+from nanosim.paper import PAPER_CONTROLLER_ORDER, PAPER_FIT_PERCENT, PAPER_GAMMA, PAPER_MODE_AXES, PAPER_MODES_HZ  # noqa: E402,F401

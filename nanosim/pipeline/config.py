@@ -1,0 +1,146 @@
+"""Configuration dataclasses: the single home of every default (CLI and Python API alike).
+
+``nanosim design`` builds a :class:`DesignConfig` from its arguments; the Python
+API uses ``DesignConfig()`` as its default, so both give the same controller.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field, replace
+
+from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_REDUCED_ORDER
+
+__all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConfig",
+           "DEFAULT_REDUCED_ORDER", "DEFAULT_DAMPING_ZETA", "DEFAULT_DAMPING_LOWPASS_HZ"]
+
+# 14 states: the Hankel singular values fall 27x after state 12, and states 13-14 (the
+# 1 s creep stage) move the full-model S bandwidth from 27.9 to 29.7 Hz (README, "Controller").
+DEFAULT_REDUCED_ORDER = 14
+# Damping ratio the inner active-damping loop adds to the first mode (0 = no damping loop).
+DEFAULT_DAMPING_ZETA = 0.1
+DEFAULT_DAMPING_LOWPASS_HZ = 400.0
+
+
+def _check_seed(seed) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed: expected a non-negative integer, got {seed!r}")
+    return seed
+
+
+@dataclass(frozen=True)
+class IdentifyConfig:
+    """Settings of ``nanosim identify``.
+
+    Attributes
+    ----------
+    seed : int
+        Seed of the stage's noise and of the excitation.
+    order : int or None
+        States per 3x1 column (paper: 13); 0 or None chooses from the singular values.
+    ideal : bool
+        Every electromechanical effect off.
+    operating_points_piezo_V : tuple of float
+        Piezo-volt offsets at which a model is identified (paper Fig. 7: 0 V and 80 V).
+    """
+
+    seed: int = 0
+    order: int | None = PAPER_IDENTIFIED_ORDER_PER_COLUMN
+    ideal: bool = False
+    operating_points_piezo_V: tuple = (0.0, 80.0)
+
+    def __post_init__(self):
+        _check_seed(self.seed)
+        if self.order is not None and (isinstance(self.order, bool) or not isinstance(self.order, int)
+                                       or not 0 <= self.order <= 60):
+            raise ValueError(f"order: expected an integer in [0, 60] (0: choose from singular values), "
+                             f"got {self.order!r}")
+
+
+@dataclass(frozen=True)
+class DesignConfig:
+    """Settings of ``nanosim design``.
+
+    Attributes
+    ----------
+    reduced_order : int
+        States of the balanced-truncation design model (paper: 10).
+    damping_zeta : float
+        Damping ratio the inner damping loop adds to the first mode; 0 = no damping loop (the paper).
+    damping_lowpass_hz : float
+        Low-pass corner of the damping loop [Hz].
+    weights : path or None
+        JSON/TOML weights file; None = the paper's weights.
+    discretization : str
+        See :func:`nanosim.design.discretize.discretize_controller`.
+    gamma_relax : float
+        0 = optimal central controller.
+    """
+
+    reduced_order: int = DEFAULT_REDUCED_ORDER
+    damping_zeta: float = DEFAULT_DAMPING_ZETA
+    damping_lowpass_hz: float = DEFAULT_DAMPING_LOWPASS_HZ
+    weights: str | os.PathLike | None = None
+    discretization: str = "auto"
+    gamma_relax: float = 0.0
+
+    def __post_init__(self):
+        if isinstance(self.reduced_order, bool) or not isinstance(self.reduced_order, int) or self.reduced_order < 1:
+            raise ValueError(f"reduced_order: expected a positive integer, got {self.reduced_order!r}")
+        z = self.damping_zeta
+        if not isinstance(z, (int, float)) or not math.isfinite(z) or not 0.0 <= z <= 1.0:
+            raise ValueError(f"damping_zeta: expected a number in [0, 1] (0 = no damping loop), got {z!r}")
+        lp = self.damping_lowpass_hz
+        if not isinstance(lp, (int, float)) or not math.isfinite(lp) or lp <= 0:
+            raise ValueError(f"damping_lowpass_hz: expected a positive number of Hz, got {lp!r}")
+        if not isinstance(self.gamma_relax, (int, float)) or not 0.0 <= self.gamma_relax < 10.0:
+            raise ValueError(f"gamma_relax: expected a number in [0, 10), got {self.gamma_relax!r}")
+
+    @classmethod
+    def paper(cls, **overrides) -> "DesignConfig":
+        """The paper's set-up: 10-state design model, single H-infinity loop, no damping loop."""
+        return replace(cls(reduced_order=PAPER_REDUCED_ORDER, damping_zeta=0.0), **overrides)
+
+    @property
+    def has_damping_loop(self) -> bool:
+        return self.damping_zeta > 0.0
+
+
+@dataclass(frozen=True)
+class CharacterizeConfig:
+    """Settings of ``nanosim characterize``.
+
+    Attributes
+    ----------
+    seed : int
+    only : str or None
+        Run one registered experiment.
+    twin : bool
+        Run on the linear twin (same electromechanics) instead of MuJoCo.
+    workers : int or None
+        Threads for the independent experiments (default: up to 2).
+    """
+
+    seed: int = 0
+    only: str | None = None
+    twin: bool = False
+    workers: int | None = None
+
+    def __post_init__(self):
+        _check_seed(self.seed)
+        if self.workers is not None and (not isinstance(self.workers, int) or self.workers < 1):
+            raise ValueError(f"workers: expected a positive integer, got {self.workers!r}")
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Settings of ``nanosim pipeline``: one seed for every step, and each step's config."""
+
+    seed: int = 0
+    mjcf: str | os.PathLike | None = None
+    identify: IdentifyConfig = field(default_factory=IdentifyConfig)
+    design: DesignConfig = field(default_factory=DesignConfig)
+    characterize_twin_too: bool = True
+
+    def __post_init__(self):
+        _check_seed(self.seed)
