@@ -22,6 +22,21 @@ def _atomic_target(path: str | os.PathLike, suffix: str):
     return path, Path(tmp)
 
 
+def _read_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _read_umask()   # read once: os.umask is process-global and not thread-safe
+
+
+def _publish(tmp: Path, path: Path) -> None:
+    """Give ``tmp`` the permissions a plainly created file would have (0666 & ~umask), then rename it."""
+    os.chmod(tmp, 0o666 & ~_UMASK)
+    os.replace(tmp, path)
+
+
 def _to_jsonable(obj: Any):
     if isinstance(obj, np.ndarray):
         return obj.tolist()
@@ -40,7 +55,7 @@ def write_json(path: str | os.PathLike, data: Mapping[str, Any]) -> Path:
     text = json.dumps(_nan_to_none(data), indent=2, default=_to_jsonable, allow_nan=False)
     try:
         tmp.write_text(text + "\n")
-        os.replace(tmp, path)
+        _publish(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
     return path
@@ -70,7 +85,7 @@ def write_npz(path: str | os.PathLike, **arrays: Any) -> Path:
     try:
         with open(tmp, "wb") as fh:
             np.savez(fh, **clean)
-        os.replace(tmp, path)
+        _publish(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
     return path
@@ -81,11 +96,20 @@ def load_npz(path: str | os.PathLike, required: tuple[str, ...] = ()) -> dict[st
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file (expected an .npz artifact)")
+    import zipfile
+
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"{path}: not an .npz file (expected a zip archive of .npy arrays)")
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
-    except Exception as exc:  # zipfile/format errors
-        raise ValueError(f"{path}: not a readable .npz file ({exc})") from None
+    except ValueError as exc:
+        if "pickle" in str(exc).lower():
+            raise ValueError(f"{path}: holds object (pickled) arrays; nanosim reads plain numeric arrays only") \
+                from None
+        raise ValueError(f"{path}: not a readable .npz file ({str(exc).splitlines()[0]})") from None
+    except Exception as exc:  # zipfile/format errors  # noqa: BLE001
+        raise ValueError(f"{path}: not a readable .npz file ({type(exc).__name__})") from None
     missing = [k for k in required if k not in data]
     if missing:
         raise ValueError(f"{path}: missing arrays {missing}; found {sorted(data)}")
@@ -93,16 +117,13 @@ def load_npz(path: str | os.PathLike, required: tuple[str, ...] = ()) -> dict[st
 
 
 def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
-    """Save a matplotlib figure as PNG atomically and close it."""
-    import matplotlib.pyplot as plt
-
+    """Save a matplotlib ``Figure`` as PNG atomically (pyplot is never involved)."""
     path, tmp = _atomic_target(path, ".png")
     try:
         fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
-        os.replace(tmp, path)
+        _publish(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
-        plt.close(fig)
     return path
 
 
@@ -110,7 +131,7 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
     path, tmp = _atomic_target(path, ".tmp")
     try:
         tmp.write_text(text)
-        os.replace(tmp, path)
+        _publish(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
     return path

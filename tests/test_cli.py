@@ -32,7 +32,7 @@ def test_modes_json_has_the_issue_keys_and_paper_modes():
     (("modes", "--mjcf", "/nonexistent.xml"), "no such file"),
     (("design", "--model", "/nonexistent/model.npz", "--out", "{tmp}"), "no such file"),
     (("characterize", "--controller", "/nonexistent/controller.npz", "--out", "{tmp}"), "no such file"),
-    (("characterize", "--controller", "{ctrl}", "--out", "{tmp}", "--only", "warp_drive"), "unknown experiment"),
+    (("characterize", "--controller", "{ctrl}", "--out", "{tmp}", "--only", "warp_drive"), "expected one of"),
 ])
 def test_user_errors_are_one_line_without_traceback(tmp_path, args, needle):
     ctrl = tmp_path / "c.npz"
@@ -53,7 +53,7 @@ def test_malformed_mjcf_is_one_line(tmp_path):
 
 
 def test_same_seed_same_numbers(tmp_path):
-    from nanosim.design.legacy import design_hinf, discretize_controller, reduce_model
+    from nanosim.design import design_hinf, discretize_controller, reduce_model
     from nanosim.plant.linearize import linearize
     from nanosim.plant.stage import Stage, StageConfig
 

@@ -3,7 +3,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from nanosim.experiments import section5 as E
+from nanosim.design.lti import crossing_hz
+from nanosim.experiments.contouring import contour_reference
+from nanosim.experiments.loop import run_closed_loop, step_metrics
+from nanosim.experiments.small_steps import small_steps
+from nanosim.plant.twin import TwinStage
 from nanosim.design.controller import DiscreteController
 from nanosim.plant.linearize import linearize
 from nanosim.plant.stage import Stage, StageConfig
@@ -15,7 +19,7 @@ def test_step_metrics_of_a_second_order_response():
     wd = wn * np.sqrt(1 - zeta**2)
     t = np.arange(0, 0.2, 1 / 4000)
     y = 1 - np.exp(-zeta * wn * t) * (np.cos(wd * t) + zeta / np.sqrt(1 - zeta**2) * np.sin(wd * t))
-    rise, peak, settle, over = E.step_metrics(t, y, 1.0)
+    rise, peak, settle, over = step_metrics(t, y, 1.0)
     assert_allclose(over, 100 * np.exp(-np.pi * zeta / np.sqrt(1 - zeta**2)), rtol=0.01)
     assert_allclose(peak, 1e3 * np.pi / wd, atol=0.25)
     assert_allclose(settle, 1e3 * 4 / (zeta * wn), rtol=0.25)      # 2 % settling ~ 4 / (zeta wn)
@@ -24,18 +28,18 @@ def test_step_metrics_of_a_second_order_response():
 def test_unsettled_step_reports_infinity():
     t = np.arange(0, 0.05, 1 / 4000)
     y = 1 + 0.1 * np.sin(2 * np.pi * 176 * t)
-    assert E.step_metrics(t, y, 1.0)[2] == float("inf")
+    assert step_metrics(t, y, 1.0)[2] == float("inf")
 
 
 def test_first_crossing_of_first_order_sensitivity():
     f = np.logspace(0, 3, 2000)
     fb = 30.0
     sS = np.abs(1j * f / fb / (1 + 1j * f / fb))              # S = s / (s + wb): -3 dB at fb
-    assert_allclose(E.crossing_hz(f, sS, 1 / np.sqrt(2), rising=True), fb, rtol=2e-3)
+    assert_allclose(crossing_hz(f, sS, 1 / np.sqrt(2), rising=True), fb, rtol=2e-3)
 
 
 def test_contour_reference_is_the_45_degree_line_at_the_given_speed():
-    ref = E.contour_reference(100.0)
+    ref = contour_reference(100.0)
     assert_allclose(ref[:, 0], ref[:, 1])
     assert_allclose(ref[:, 0].max(), 20.0)
     v = np.hypot(np.diff(ref[:, 0]), np.diff(ref[:, 1])) * 4000
@@ -61,11 +65,11 @@ def test_twin_and_mujoco_closed_loops_agree(simple_controller):
     cfg = StageConfig.ideal()
     stage = Stage(config=cfg)
     lin = linearize(Stage(config=StageConfig.ideal()))
-    twin = E.TwinStage(lin, config=cfg, home_um=stage.table_um)
+    twin = TwinStage(lin, config=cfg, home_um=stage.table_um)
     simple_controller.reset()
-    a = E.run_closed_loop(stage, simple_controller, ref)
+    a = run_closed_loop(stage, simple_controller, ref)
     simple_controller.reset()
-    b = E.run_closed_loop(twin, simple_controller, ref)
+    b = run_closed_loop(twin, simple_controller, ref)
     assert_allclose(a.y_um, b.y_um, atol=0.02 * 1.0)              # 2 % of the 1 um step
     assert_allclose(a.y_um[-50:, 0].mean(), 1.0, rtol=0.01)       # near-integral action: no offset
 
@@ -73,5 +77,5 @@ def test_twin_and_mujoco_closed_loops_agree(simple_controller):
 def test_small_steps_resolved_with_integral_action(simple_controller):
     fac = lambda s: Stage(seed=s, config=StageConfig.ideal())
     simple_controller.reset()
-    r = E.small_steps(fac, simple_controller, n_steps=3, dwell_s=0.1)
+    r = small_steps(fac, simple_controller, n_steps=3, dwell_s=0.1)
     assert_allclose(r.plateau_mean_nm, r.targets_nm, atol=1.0)

@@ -4,7 +4,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 import identification as ident
-from nanosim.pipeline.identify import IdentifySettings, assemble, identify_stage
+from nanosim.experiments.sysid import IdentifySettings, assemble, identify_stage
 from nanosim.plant.mjcf import load_model
 from nanosim.plant.modes import modal_analysis
 

@@ -7,22 +7,11 @@ from scipy.signal import max_len_seq
 
 from nanosim import constants as C
 from nanosim.plant.electronics import ElectronicsConfig
-from nanosim.plant.linearize import linearize
 from nanosim.plant.modes import modal_analysis
 from nanosim.plant.piezo import PiezoConfig, loop_hysteresis_percent
 from nanosim.plant.stage import Stage, StageConfig, run_open_loop_batch
 
 PAPER_SIGMA_OPEN_NM = 11.4          # paper Sec. 5, Fig. 16
-
-
-@pytest.fixture(scope="module")
-def ideal():
-    return Stage(config=StageConfig.ideal())
-
-
-@pytest.fixture(scope="module")
-def twin(ideal):
-    return linearize(ideal)
 
 
 def test_twin_dc_gain_and_modes_equal_modal_analysis(ideal, twin):

@@ -18,11 +18,6 @@ PAPER_MODES = [(175.0, "XY"), (179.0, "XY"), (245.0, "Z"), (460.0, "XY"), (474.0
 
 
 @pytest.fixture(scope="module")
-def model():
-    return load_model()
-
-
-@pytest.fixture(scope="module")
 def modal(model):
     return modal_analysis(model)
 

@@ -8,18 +8,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from nanosim.plant.mjcf import load_model
 from nanosim.plant.modes import modal_analysis, volts_to_force_N
 from nanosim.viewer import add_view_arguments, port_is_free, run_view
 from nanosim.viewer import scene as sc
 from nanosim.viewer import waveforms as wf
 from nanosim.viewer.exaggerate import (LINK_LENGTH_M, Exaggerator, closure_error, exaggerate_q,
                                        static_deflection_q, table_displacement_m)
-
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model()
 
 
 # ---------------------------------------------------------------- scene

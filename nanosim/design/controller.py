@@ -171,7 +171,7 @@ class DiscreteController:
         return cls(ControllerConfig(Akd, Bkd, Ckd, Dkd, dt, n_error))
 
     @classmethod
-    def from_npz(cls, path: str | os.PathLike) -> "DiscreteController":
+    def from_npz(cls, path: str | os.PathLike, expected_dt: float | None = None) -> "DiscreteController":
         """Load ``controller.npz`` (keys ``Akd, Bkd, Ckd, Dkd, dt``; no pickle).
 
         Raises
@@ -185,9 +185,13 @@ class DiscreteController:
         data = fileio.load_npz(path, required=_REQUIRED)
         extra = {k: data[k] for k in _OPTIONAL if k in data}
         try:
-            return cls(ControllerConfig(*(data[k] for k in _REQUIRED), **extra))
+            ctrl = cls(ControllerConfig(*(data[k] for k in _REQUIRED), **extra))
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
+        if expected_dt is not None and abs(ctrl.config.dt - expected_dt) > 1e-9 * expected_dt:
+            raise ValueError(f"{path}: dt: expected the loop's sample time {expected_dt:g} s, "
+                             f"got {ctrl.config.dt:g} s")
+        return ctrl
 
     # --- state -----------------------------------------------------------------------
     @property

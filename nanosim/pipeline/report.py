@@ -10,14 +10,10 @@ import numpy as np
 
 from nanosim import constants as C
 from nanosim.fileio import write_text
+from nanosim.paper import PAPER
+from nanosim.pipeline import artifacts as A
 
 # (section, label, paper value, unit, getter on the run's json dicts, acceptance test, band text)
-PAPER = {
-    "modes": C.PAPER_MODES_HZ, "gamma": C.PAPER_GAMMA, "order": C.PAPER_CONTROLLER_ORDER,
-    "S_nom": 1.45, "S_full": 1.85, "bwS": 32.0, "bwT": 59.0, "rise": 5.0, "peak": 8.0, "settle": 11.0,
-    "over": 8.0, "sig_o": 11.4, "sig_c": 1.89, "s2_o": 22.6, "s2_c": 4.8, "s3_o": 30.1, "s3_c": 6.9,
-    "hyst_o": 15.0, "hyst_c": 20.0, "contour_mean": 40.0, "contour_max": 70.0, "axis_err": 3.0,
-}
 
 
 def _load(run: Path, name: str) -> dict:
@@ -37,7 +33,7 @@ def _get(d, *keys):
 
 
 def _rows(run: Path):
-    modes, ident, des, met = (_load(run, n) for n in ("modes.json", "identify.json", "design.json", "metrics.json"))
+    modes, ident, des, met = (_load(run, n) for n in (A.MODES_JSON, A.IDENTIFY_JSON, A.DESIGN_JSON, A.METRICS_JSON))
     rows = []
 
     def add(section, label, paper, sim, unit, ok=None, band=""):
@@ -127,38 +123,30 @@ def _diff(p, s):
     return f"{d:+.3g}" + (f" ({100 * d / p:+.0f} %)" if p else "")
 
 
-FIGURES = [
-    ("Mode shapes (first mode)", "modes/mode_01_*.png"),
-    ("Identification: time-domain fit (Fig. 4)", "fig04_time_domain_fit.png"),
-    ("Identified frequency response vs linear twin (Fig. 5)", "fig05_identified_frequency_response.png"),
-    ("Parametric vs non-parametric (Fig. 6)", "fig06_parametric_vs_h1.png"),
-    ("Two operating points (Fig. 7)", "fig07_operating_points.png"),
-    ("Subspace singular values", "singular_values.png"),
-    ("Hankel singular values (Fig. 8)", "fig08*.png"),
-    ("Full vs reduced model (Fig. 9)", "fig09*.png"),
-    ("Multiplicative uncertainty (Fig. 10)", "fig10*.png"),
-    ("Weights and sensitivities (Figs. 11b, 12)", "fig11*.png"),
-    ("Sensitivity with nominal and full models (Fig. 12)", "fig12*.png"),
-    ("Closed-loop design singular values (Fig. 18 a-b)", "fig18_*design*.png"),
-    ("Closed-loop Bode grid (Figs. 13, 21)", "fig21*.png"),
-    ("Controller Bode grid (Fig. 22)", "fig22*.png"),
-    ("Hysteresis, open and closed loop (Fig. 14)", "fig14_hysteresis.png"),
-    ("Creep (Fig. 15)", "fig15_creep.png"),
-    ("Resolution and PSD (Fig. 16)", "fig16_resolution.png"),
-    ("10 nm steps (Fig. 17)", "fig17_small_steps.png"),
-    ("Measured bandwidth and 2 um step (Fig. 18)", "fig18_bandwidth_step.png"),
-    ("Tracking (Fig. 19)", "fig19_tracking.png"),
-    ("Contouring (Fig. 20)", "fig20_contouring.png"),
-]
-
-
 def _figures(run: Path):
-    seen, out = set(), []
-    for title, pattern in FIGURES:
-        for p in sorted(run.glob(pattern)):
-            if p.name not in seen:
-                seen.add(p.name)
-                out.append((title, p.relative_to(run).as_posix()))
+    """(caption, relative path) of every figure of the run, in registry order, then the twin folder's.
+
+    Registered figures come first (:data:`nanosim.pipeline.artifacts.FIGURES`); any other PNG in
+    the folder is listed after them under its file name, so nothing the run made is left out.
+    """
+    out, seen = [], set()
+    for prefix, folder in (("", run), ("Linear twin: ", run / A.TWIN_DIR)):
+        if not folder.is_dir():
+            continue
+        for art in A.FIGURES:
+            for p in sorted(folder.glob(art.name)):
+                rel = p.relative_to(run).as_posix()
+                if rel not in seen:
+                    seen.add(rel)
+                    caption = art.caption + (f", {p.stem}" if art.is_pattern else "")
+                    out.append((prefix + caption, rel))
+        for p in sorted(folder.rglob("*.png")):
+            rel = p.relative_to(run).as_posix()
+            in_twin = rel.startswith(f"{A.TWIN_DIR}/")
+            if rel in seen or (folder == run and in_twin):
+                continue
+            seen.add(rel)
+            out.append((prefix + p.stem, rel))
     return out
 
 
@@ -179,7 +167,7 @@ TWIN_KEYS = [
 
 def _twin_rows(run: Path):
     """(label, MuJoCo value, linear-twin value) for the closed-loop metrics, if a twin run exists."""
-    mj, tw = _load(run, "metrics.json"), _load(run / "twin", "metrics.json")
+    mj, tw = _load(run, A.METRICS_JSON), _load(run / A.TWIN_DIR, A.METRICS_JSON)
     if not tw:
         return []
 
@@ -203,19 +191,24 @@ def _architecture(des: dict) -> list[str]:
         text = (f"Controller: the paper's H-infinity mixed-sensitivity design (same weights Wp, Wu, Wt) on a "
                 f"{order}-state design model, around an inner active-damping loop (band-limited velocity "
                 f"feedback, +{dl['zeta_added']:g} damping at {dl['mode_hz']:.0f} Hz, low-pass "
-                f"{dl['lowpass_hz']:g} Hz): u = K e + Ky y. The paper's single loop leaves the 176/178 Hz pair at "
-                f"zeta ~ 0.003, so the piezo's hysteresis and noise ring there for ~0.3 s (2 um step settling "
-                f"275 ms, closed-loop sigma 4.2 nm); `nanosim pipeline --paper-design` reproduces that set-up."
+                f"{dl['lowpass_hz']:g} Hz): u = K e + Ky y. The paper's single loop leaves the first XY pair "
+                f"lightly damped in closed loop; `nanosim pipeline --paper-design` reproduces that set-up."
                 f"{ring}")
     return ["## Controller", "", text, ""]
+
+
+def pass_count(run_dir) -> tuple[int, int]:
+    """(rows inside their band, rows with a band) of the run's paper-vs-simulation table."""
+    rows = _rows(Path(run_dir))
+    return sum(1 for r in rows if r[5] is True), sum(1 for r in rows if r[5] is not None)
 
 
 def write_report(run_dir) -> tuple[Path, Path]:
     """Write report.md and report.html into ``run_dir`` from its json files and figures."""
     run = Path(run_dir)
     rows = _rows(run)
-    timing = _load(run, "pipeline.json").get("stage_seconds", {})
-    met = _load(run, "metrics.json")
+    timing = _load(run, A.PIPELINE_JSON).get("stage_seconds", {})
+    met = _load(run, A.METRICS_JSON)
     n_ok = sum(1 for r in rows if r[5] is True)
     n_band = sum(1 for r in rows if r[5] is not None)
     paper_title = "Robust Control of a Parallel-Kinematic Nanopositioner"
@@ -225,7 +218,7 @@ def write_report(run_dir) -> tuple[Path, Path]:
     md = ["# nanosim report", "", f"Simulated reproduction of *{paper_title}* {rest}", ""]
     if timing:
         md += ["Stage wall times (s): " + ", ".join(f"{k} {v}" for k, v in timing.items()), ""]
-    md += _architecture(_load(run, "design.json"))
+    md += _architecture(_load(run, A.DESIGN_JSON))
     md += ["## Paper vs simulation", "", "| section | quantity | paper | simulation | difference | unit | band | ok |",
            "|---|---|---|---|---|---|---|---|"]
     for sec, label, p, s, u, ok, band in rows:
@@ -242,7 +235,7 @@ def write_report(run_dir) -> tuple[Path, Path]:
     figs = _figures(run)
     for title, rel in figs:
         md += [f"### {title}", "", f"![{title}]({rel})", ""]
-    md_path = write_text(run / "report.md", "\n".join(md) + "\n")
+    md_path = write_text(run / A.REPORT_MD, "\n".join(md) + "\n")
     h = ["<!doctype html><html><head><meta charset='utf-8'><title>nanosim report</title>",
          "<style>body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}"
          "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
@@ -269,5 +262,5 @@ def write_report(run_dir) -> tuple[Path, Path]:
     for title, rel in figs:
         h.append(f"<h3>{html.escape(title)}</h3><img src='{html.escape(rel)}' alt='{html.escape(title)}'>")
     h.append("</body></html>")
-    html_path = write_text(run / "report.html", "\n".join(h) + "\n")
+    html_path = write_text(run / A.REPORT_HTML, "\n".join(h) + "\n")
     return md_path, html_path

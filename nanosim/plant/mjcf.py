@@ -63,8 +63,8 @@ def load_model(path: str | os.PathLike | None = None, *,
     try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "parse error"
-        raise ValueError(f"mjcf: {path} is not a valid MuJoCo model: {first}") from None
+        detail = " ".join(line.strip() for line in str(exc).strip().splitlines()[:2]) or "parse error"
+        raise ValueError(f"mjcf: {path} is not a valid MuJoCo model: {detail}") from None
     check_model(model, str(path))
     if stiffness_scale:
         _scale_stiffness(model, stiffness_scale)

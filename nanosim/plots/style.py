@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["new_figure", "magnitude_db", "bode_grid", "ACTUATOR_NAMES", "AXIS_NAMES"]
+__all__ = ["new_figure", "subplots", "magnitude_db", "bode_grid", "ACTUATOR_NAMES", "AXIS_NAMES"]
 
 ACTUATOR_NAMES = ("A", "B", "C")
 AXIS_NAMES = ("X", "Y", "Z")
@@ -65,3 +65,11 @@ def bode_grid(title, curves, freq_hz, ylabel="magnitude [dB]", in_names=None, ou
     axs[0, 0].legend(fontsize=8, loc="best")
     fig.suptitle(title)
     return fig
+
+
+def subplots(nrows: int = 1, ncols: int = 1, figsize=(8, 5), **subplot_kw):
+    """Like ``pyplot.subplots`` (squeezed axes) but a pyplot-free constrained-layout Figure."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize, layout="constrained")
+    return fig, fig.subplots(nrows, ncols, **subplot_kw)

@@ -1,8 +1,7 @@
 """Live closed/open-loop simulation used by the viewer's physics thread.
 
-Uses :class:`nanosim.stage.Stage` when importable; otherwise a raw MuJoCo
-fallback (tendon force = 3.6 N per controller volt, 20 substeps per 4 kHz
-control period) so the viewer still runs.
+The mechanics is the MuJoCo :class:`~nanosim.plant.stage.Stage` or the linear
+:class:`~nanosim.plant.twin.TwinStage`, with the same electronics around both.
 """
 from __future__ import annotations
 
@@ -15,12 +14,12 @@ from nanosim import constants as C
 from nanosim.plant.mechanics import home_data
 from nanosim.plant.mjcf import load_model
 from nanosim.plant.mjcf import probe_readings_um
-from nanosim.plant.modes import modal_analysis, volts_to_force_N
+from nanosim.plant.modes import modal_analysis
 
-try:  # the stage simulator (electronics, piezo hysteresis, noise)
-    from nanosim.plant.stage import Stage, StageConfig
-except Exception:  # noqa: BLE001 - any import problem -> fallback
-    Stage = StageConfig = None
+from nanosim.design.controller import DiscreteController
+from nanosim.plant.linearize import linearize
+from nanosim.plant.stage import Stage, StageConfig
+from nanosim.plant.twin import TwinStage
 
 
 def load_controller(path):
@@ -29,10 +28,6 @@ def load_controller(path):
     if not p.is_file():
         raise FileNotFoundError(f"controller: no such file {str(p)!r} (expected a .npz from the synthesis step)")
     try:
-        from nanosim.design.controller import DiscreteController
-    except Exception as exc:  # noqa: BLE001
-        raise ValueError(f"controller: nanosim.controller is not available ({exc})") from None
-    try:
         return DiscreteController.from_npz(p)
     except (OSError, KeyError, ValueError) as exc:
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
@@ -40,42 +35,6 @@ def load_controller(path):
 
 
 PHYSICS = ("mujoco", "linear")
-
-
-class RawStage:
-    """Minimal Stage stand-in on raw MuJoCo (linear piezo, optional noise/saturation)."""
-
-    def __init__(self, model: mujoco.MjModel, realistic: bool = False, seed: int = 0):
-        self.model = model
-        self.realistic = realistic
-        self.rng = np.random.default_rng(seed)
-        self.substeps = max(1, int(round(C.CONTROL_PERIOD_S / model.opt.timestep)))
-        self.reset()
-
-    def reset(self):
-        self.data = home_data(self.model)
-        self.time_s = 0.0
-        self.last_piezo_V = np.zeros(3)
-        self.last_saturated = np.zeros(3, bool)
-        self.table_um = np.zeros(3)
-        self._adr = self.model.sensor_adr[self.model.sensor("table_pos").id]
-        self._table0 = self.data.sensordata[self._adr:self._adr + 3].copy()
-
-    def step(self, u_V) -> np.ndarray:
-        u = np.asarray(u_V, float)
-        if self.realistic:
-            lo, hi = C.COMMAND_RANGE_V
-            self.last_saturated = (u < lo) | (u > hi)
-            u = np.clip(u, lo, hi)
-        self.last_piezo_V = u * C.AMPLIFIER_GAIN
-        self.data.ctrl[:3] = u * volts_to_force_N()
-        mujoco.mj_step(self.model, self.data, nstep=self.substeps)
-        self.time_s += self.substeps * self.model.opt.timestep
-        self.table_um = (self.data.sensordata[self._adr:self._adr + 3] - self._table0) * 1e6
-        y_um = probe_readings_um(self.model, self.data)
-        if self.realistic:
-            y_um = y_um + self.rng.normal(0, C.SENSOR_NOISE_NM_RMS_1KHZ * 1e-3, 3)
-        return y_um / C.SENSOR_UM_PER_V
 
 
 class LiveSim:
@@ -96,7 +55,6 @@ class LiveSim:
         self.seed = seed
         self.G0 = modal_analysis(self.model).static_gain_um_per_V
         self.G0inv = np.linalg.inv(self.G0)
-        self.backend = "stage" if Stage is not None else "raw-mujoco"
         self.realistic = realistic
         self.physics = physics
         self._twin = None
@@ -113,25 +71,18 @@ class LiveSim:
 
     def _linear_twin(self):
         if self._twin is None:
-            from nanosim.plant.linearize import linearize
             self._twin = linearize(Stage(config=StageConfig.ideal(), model=self.model), with_qpos=True)
         return self._twin
 
     def _make_stage(self):
         if self.physics == "linear":
-            from nanosim.experiments.section5 import TwinStage
             cfg = StageConfig() if self.realistic else StageConfig.ideal()
             home = home_data(self.model)
             self.stage = TwinStage(self._linear_twin(), seed=self.seed, config=cfg,
                                    home_um=probe_readings_um(self.model, home), home_qpos=home.qpos)
-        elif Stage is not None:
-            cfg = StageConfig() if self.realistic else StageConfig.ideal()
-            try:
-                self.stage = Stage(seed=self.seed, config=cfg, model=self.model)
-            except TypeError:
-                self.stage = Stage(seed=self.seed, config=cfg, mjcf=self.mjcf)
         else:
-            self.stage = RawStage(self.model, realistic=self.realistic, seed=self.seed)
+            cfg = StageConfig() if self.realistic else StageConfig.ideal()
+            self.stage = Stage(seed=self.seed, config=cfg, model=self.model)
         # probe reading at home (e.g. the Z probe's zero offset): the viewer's
         # references and readouts are displacements from home
         self.y_home_V = self._home_reading_V()

@@ -1,0 +1,6 @@
+"""``python -m nanosim`` runs the command line."""
+import sys
+
+from nanosim.cli import main
+
+sys.exit(main())

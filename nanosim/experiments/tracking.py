@@ -1,0 +1,65 @@
+"""Tracking of triangles and sines at 5-40 Hz (paper Fig. 19)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+from nanosim.experiments.loop import (
+    FS,
+    LoopTrace,
+    StageFactory,
+    interpolate,
+    run_closed_loop,
+)
+from nanosim.experiments.registry import Experiment, register
+from nanosim.plots.experiments import fig_tracking
+
+
+@dataclass(frozen=True)
+class TrackingCase:
+    waveform: str
+    freq_hz: float
+    trace: LoopTrace
+    rms_error_nm: float
+    max_error_nm: float
+    phase_lag_deg: float
+
+
+def _wave(kind, f, t, amp):
+    ph = 2 * np.pi * f * t
+    if kind == "sine":
+        return amp * 0.5 * (1 - np.cos(ph))
+    return amp * np.abs(signal.sawtooth(ph, 0.5) + 1) / 2
+
+
+def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40), amplitude_um=10.0,
+             periods=3, axis=0) -> list:
+    cases = []
+    for kind in ("triangle", "sine"):
+        for f in freqs_hz:
+            n = int((periods + 1) / f * FS)
+            t = np.arange(n) / FS
+            ref = np.zeros((n, 3))
+            ref[:, axis] = _wave(kind, f, t, amplitude_um)
+            controller.reset()
+            cl = run_closed_loop(factory(seed), controller, interpolate(ref))
+            keep = slice(int(1 / f * FS), n)
+            e = cl.error_um[keep, axis] * 1e3
+            tt = t[keep]
+            basis = np.exp(-2j * np.pi * f * tt)
+            lag = np.angle(np.sum(cl.ref_um[keep, axis] * basis) / np.sum(cl.y_um[keep, axis] * basis))
+            cases.append(TrackingCase(kind, float(f), cl, float(np.sqrt(np.mean(e ** 2))), float(np.abs(e).max()),
+                                      float(np.degrees(lag))))
+    return cases
+
+
+def _metrics(cases) -> dict:
+    return {"tracking": [{"waveform": c.waveform, "freq_hz": c.freq_hz, "rms_error_nm": c.rms_error_nm,
+                          "max_error_nm": c.max_error_nm, "phase_lag_deg": c.phase_lag_deg} for c in cases]}
+
+
+register(Experiment("tracking", run=lambda ctx: tracking(ctx.factory, ctx.controller, seed=ctx.seed),
+                    metrics=_metrics, figure=lambda r, ctx: fig_tracking(r), figure_name="fig19_tracking.png",
+                    order=60, cost=4))

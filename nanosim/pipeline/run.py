@@ -1,0 +1,116 @@
+"""``nanosim pipeline`` and the single steps: modes -> identify -> design -> characterize -> report.
+
+Every step writes into a folder it is given; :func:`run_pipeline` and the CLI
+give them a staging folder (:func:`nanosim.pipeline.runfolder.staged_run`), so
+a run folder is complete or untouched.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from nanosim.fileio import save_figure, write_json, write_npz
+from nanosim.pipeline import artifacts as A
+from nanosim.pipeline.config import CharacterizeConfig, DesignConfig, IdentifyConfig, PipelineConfig
+
+__all__ = ["step_modes", "write_twin_npz", "step_identify", "step_design", "step_characterize", "step_report",
+           "PIPELINE_STEPS", "run_pipeline"]
+
+
+def step_modes(out: Path, mjcf=None) -> None:
+    """``modes.json`` and one mode-shape PNG per mode below 1 kHz in ``modes/``."""
+    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.modes import modal_analysis, modes_json
+    from nanosim.plots.modes import mode_shape_figures
+
+    model = load_model(mjcf)
+    write_json(out / A.MODES_JSON, modes_json(model))
+    for name, fig in mode_shape_figures(model, modal_analysis(model)):
+        save_figure(fig, out / A.MODES_DIR / name)
+
+
+def write_twin_npz(out: Path, mjcf=None) -> Path:
+    """``twin.npz``: MuJoCo's linearization of the ideal stage (controller V -> sensor V)."""
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.stage import Stage, StageConfig
+
+    tw = linearize(Stage(config=StageConfig.ideal(), mjcf=mjcf))
+    s = tw.sys_V
+    return write_npz(out / A.TWIN_NPZ, A=s.A, B=s.B, C=s.C, D=s.D, Ad=tw.sysd_V.A, Bd=tw.sysd_V.B,
+                     Cd=tw.sysd_V.C, Dd=tw.sysd_V.D, dt=tw.dt_s,
+                     units=np.array("controller V -> sensor V (5 um/V); ideal MuJoCo stage, linear piezo"))
+
+
+def step_identify(out: Path, config: IdentifyConfig, mjcf=None, progress=None) -> None:
+    from nanosim.pipeline.identify import run_identify
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.stage import Stage, StageConfig
+
+    model = load_model(mjcf)
+    twin = linearize(Stage(config=StageConfig.ideal(), model=model))
+    run_identify(out, config, model=model, twin=twin, progress=progress)
+
+
+def step_design(out: Path, config: DesignConfig, model_npz=None, mjcf=None) -> None:
+    from nanosim.pipeline.design import run_design
+
+    run_design(model_npz or out / A.MODEL_NPZ, out, config, twin=str(write_twin_npz(out, mjcf)), progress=False)
+
+
+def step_characterize(out: Path, config: CharacterizeConfig, controller_npz=None, mjcf=None) -> None:
+    from nanosim.pipeline.characterize import run_characterize
+
+    run_characterize(controller_npz or out / A.CONTROLLER_NPZ, out, config, mjcf=mjcf, progress=True)
+
+
+def step_report(out: Path) -> None:
+    from nanosim.pipeline.report import write_report
+
+    write_report(out)
+
+
+PIPELINE_STEPS = ("modes", "identify", "design", "characterize", "characterize_twin", "report")
+
+
+def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: bool = True) -> dict:
+    """Run every step into ``out`` (normally a staging folder); returns ``pipeline.json``'s content."""
+    cfg = config or PipelineConfig()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ident_cfg = cfg.identify if cfg.identify.seed == cfg.seed else IdentifyConfig(
+        seed=cfg.seed, order=cfg.identify.order, ideal=cfg.identify.ideal,
+        operating_points_piezo_V=cfg.identify.operating_points_piezo_V)
+    steps = {
+        "modes": lambda: step_modes(out, cfg.mjcf),
+        "identify": lambda: step_identify(out, ident_cfg, cfg.mjcf),
+        "design": lambda: step_design(out, cfg.design, mjcf=cfg.mjcf),
+        "characterize": lambda: step_characterize(out, CharacterizeConfig(seed=cfg.seed), mjcf=cfg.mjcf),
+        "characterize_twin": lambda: step_characterize(out / A.TWIN_DIR, CharacterizeConfig(seed=cfg.seed, twin=True),
+                                                       controller_npz=out / A.CONTROLLER_NPZ, mjcf=cfg.mjcf),
+        "report": lambda: step_report(out),
+    }
+    names = [n for n in PIPELINE_STEPS if n != "characterize_twin" or cfg.characterize_twin_too]
+    timings: dict[str, float] = {}
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=len(names), desc="nanosim pipeline", unit="step", file=sys.stderr)
+    for name in names:
+        if name == "report":    # the report reads pipeline.json
+            write_json(out / A.PIPELINE_JSON, {"stage_seconds": timings, "seed": cfg.seed})
+        if bar:
+            bar.set_postfix_str(f"running {name}")
+        t0 = time.perf_counter()
+        steps[name]()
+        timings[name] = round(time.perf_counter() - t0, 2)
+        if bar:
+            bar.update(1)
+    if bar:
+        bar.close()
+    result = {"stage_seconds": timings, "seed": cfg.seed}
+    write_json(out / A.PIPELINE_JSON, result)
+    return result

@@ -1,0 +1,154 @@
+"""Figures of the Section 5 experiments (paper Figs. 14-20); each returns a Figure and writes nothing."""
+from __future__ import annotations
+
+import numpy as np
+
+from nanosim import constants as C
+from nanosim.plots.style import subplots
+
+__all__ = ["fig_hysteresis", "fig_creep", "fig_resolution", "fig_small_steps", "fig_bandwidth", "fig_tracking",
+           "fig_contouring"]
+
+
+def fig_hysteresis(r):
+    fig, ax = subplots(1, 2, figsize=(11, 4.4))
+    for i, ax_name in enumerate("XYZ"):
+        ax[0].plot(r.open_v, r.open_y_um[:, i], label=ax_name)
+    ax[0].set_xlabel("actuator A command (controller V)")
+    ax[0].set_ylabel("displacement (um)")
+    ax[0].set_title(f"(a) open loop: output hysteresis {r.open_loop_percent:.1f} % of X travel")
+    ax[0].legend()
+    ax[0].grid(alpha=0.3)
+    ref, y = r.closed.ref_um[:, 0], r.closed.y_um[:, 0]
+    ax[1].plot(ref, (y - ref) * 1e3, lw=0.6, label="continuous triangle (tracking error)")
+    ax[1].plot(r.closed_levels_um, (r.closed_up_um - r.closed_levels_um) * 1e3, "o-", label="settled, going up")
+    ax[1].plot(r.closed_levels_um, (r.closed_down_um - r.closed_levels_um) * 1e3, "s--", label="settled, going down")
+    ax[1].set_xlabel("X reference (um)")
+    ax[1].set_ylabel("X output - reference (nm)")
+    ax[1].set_title(f"(b) closed loop: settled hysteresis {r.closed_loop_nm:.1f} nm, ramp lag {r.closed_ramp_lag_nm:.0f} nm")
+    ax[1].legend(fontsize=8, loc="center", bbox_to_anchor=(0.5, 0.7))   # in the empty band above the settled points
+    ax[1].grid(alpha=0.3)
+    return fig
+
+
+def fig_creep(r):
+    fig, ax = subplots(1, 2, figsize=(11, 4.2), sharey=False)
+    for a, (y, title, d) in zip(ax, ((r.open_y_um, "open loop (inverse static gain)", r.open_drift_nm),
+                                     (r.closed_y_um, "closed loop (H-infinity)", r.closed_drift_nm))):
+        k0 = int(0.5 * C.CONTROL_RATE_HZ)
+        for i, n in enumerate("XYZ"):
+            a.plot(r.t_s, (y[:, i] - y[k0:k0 + 800, i].mean()) * 1e3, lw=0.6,
+                   label=f"{n}: drift {d[i]:+.1f} nm")
+        a.set_xlabel("time since reaching the origin (s)")
+        a.set_ylabel("position - position at 0.5 s (nm)")
+        a.set_title(f"{title}, hold {r.hold_s:.0f} s")
+        a.legend(fontsize=8)
+        a.grid(alpha=0.3)
+    return fig
+
+
+def fig_resolution(r):
+    fig, ax = subplots(2, 2, figsize=(11, 7))
+    t = np.arange(len(r.open_y_nm)) / C.CONTROL_RATE_HZ
+    for j, (y, lab) in enumerate(((r.open_y_nm, "open_loop"), (r.closed_y_nm, "closed_loop"))):
+        ax[0, j].plot(t, y - y.mean(), lw=0.4)
+        s = r.sigma_nm[lab]
+        ax[0, j].set_title(f"({'ab'[j]}) {lab.replace('_', ' ')}: sigma {s:.2f} nm, "
+                           f"95.45 % {r.band2_nm[lab]:.1f} nm, 99.73 % {r.band3_nm[lab]:.1f} nm", fontsize=9)
+        for k in (1, 2, 3):
+            ax[0, j].axhline(k * s, color="0.5", lw=0.6, ls=":")
+            ax[0, j].axhline(-k * s, color="0.5", lw=0.6, ls=":")
+        ax[0, j].set_xlabel("time (s)")
+        ax[0, j].set_ylabel("X probe (nm)")
+        psd = r.psd_open if j == 0 else r.psd_closed
+        ax[1, j].loglog(r.psd_freq_hz[1:], psd[1:])
+        ax[1, j].set_xlabel("frequency (Hz)")
+        ax[1, j].set_ylabel("PSD (nm^2/Hz)")
+        ax[1, j].set_title(f"({'cd'[j]}) output PSD, no input")
+        ax[1, j].grid(True, which="both", alpha=0.3)
+    return fig
+
+
+def fig_small_steps(r):
+    fig, ax = subplots(figsize=(8, 4))
+    ax.plot(r.trace.t_s, r.trace.ref_um[:, 0] * 1e3, label="reference")
+    ax.plot(r.trace.t_s, r.trace.y_um[:, 0] * 1e3, lw=0.6, label="X probe")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("X (nm)")
+    txt = ", ".join(f"{m:.1f}" for m in r.plateau_mean_nm)
+    ax.set_title(f"10 nm steps, plateau means (nm): {txt}", fontsize=9)
+    ax.legend()
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def fig_bandwidth(r, predicted=None):
+    fig, ax = subplots(1, 3, figsize=(14, 4.2))
+    ax[0].semilogx(r.freq_hz, 20 * np.log10(r.sigma_S), label="measured on the stage (H1)")
+    ax[1].semilogx(r.freq_hz, 20 * np.log10(r.sigma_T), label="measured on the stage (H1)")
+    if predicted is not None:
+        f, sS, sT = predicted
+        ax[0].semilogx(f, 20 * np.log10(sS), "--", label="predicted (linear twin + K)")
+        ax[1].semilogx(f, 20 * np.log10(sT), "--", label="predicted (linear twin + K)")
+    for a, title, b in ((ax[0], "(a) largest singular value of S", r.bandwidth_S_hz),
+                        (ax[1], "(b) largest singular value of T", r.bandwidth_T_hz)):
+        a.axhline(-3.01, color="0.5", ls=":", lw=0.8)
+        a.axvline(b, color="tab:red", lw=0.8)
+        a.set_title(f"{title}: -3 dB at {b:.1f} Hz", fontsize=10)
+        a.set_xlabel("frequency (Hz)")
+        a.set_ylabel("dB")
+        a.grid(True, which="both", alpha=0.3)
+        a.legend(fontsize=8)
+    k0 = int(0.01 * C.CONTROL_RATE_HZ)
+    t = (r.step.t_s - r.step.t_s[k0]) * 1e3
+    ax[2].plot(t, r.step.ref_um[:, 0], label="reference")
+    ax[2].plot(t, r.step.y_um[:, 0], label="X probe")
+    ax[2].set_xlabel("time (ms)")
+    ax[2].set_ylabel("X (um)")
+    ax[2].set_title(f"(c) 2 um step: rise {r.rise_ms:.1f} ms, peak {r.peak_ms:.1f} ms, settle {r.settling_ms:.1f} ms, "
+                    f"overshoot {r.overshoot_percent:.1f} %", fontsize=9)
+    ax[2].legend()
+    ax[2].grid(alpha=0.3)
+    return fig
+
+
+def fig_tracking(cases):
+    freqs = sorted({c.freq_hz for c in cases})
+    fig, ax = subplots(2, len(freqs), figsize=(3.2 * len(freqs), 6))
+    for c in cases:
+        i = 0 if c.waveform == "triangle" else 1
+        j = freqs.index(c.freq_hz)
+        a = ax[i, j]
+        a.plot(c.trace.t_s * 1e3, c.trace.ref_um[:, 0], ":", label="reference")
+        a.plot(c.trace.t_s * 1e3, c.trace.y_um[:, 0], label="output")
+        a.set_title(f"{c.waveform} {c.freq_hz:g} Hz\nrms err {c.rms_error_nm:.0f} nm, lag {c.phase_lag_deg:.0f} deg",
+                     fontsize=9)
+        a.set_xlabel("time (ms)")
+        if j == 0:
+            a.set_ylabel("X (um)")
+        a.grid(alpha=0.3)
+    ax[0, 0].legend(fontsize=8)
+    return fig
+
+
+def fig_contouring(cases):
+    fig, ax = subplots(1, 2, figsize=(11, 4.2))
+    v = [c.speed_um_s for c in cases]
+    ax[0].loglog(v, [c.mean_error_nm for c in cases], "o-", label="mean contour error")
+    ax[0].loglog(v, [c.max_error_nm for c in cases], "s--", label="max contour error")
+    ax[0].set_xlabel("speed along the 45 degree line (um/s)")
+    ax[0].set_ylabel("contour error (nm)")
+    ax[0].set_title("(a) contour error vs speed")
+    ax[0].legend()
+    ax[0].grid(True, which="both", alpha=0.3)
+    fast = max(cases, key=lambda c: c.speed_um_s)
+    e = fast.trace.error_um
+    ax[1].plot(fast.trace.t_s * 1e3, e[:, 0], label="X tracking error")
+    ax[1].plot(fast.trace.t_s * 1e3, e[:, 1], "--", label="Y tracking error")
+    ax[1].plot(fast.trace.t_s * 1e3, (fast.trace.y_um[:, 0] - fast.trace.y_um[:, 1]) / np.sqrt(2), label="contour error")
+    ax[1].set_xlabel("time (ms)")
+    ax[1].set_ylabel("error (um)")
+    ax[1].set_title(f"(b) following errors at {fast.speed_um_s:g} um/s", fontsize=10)
+    ax[1].legend()
+    ax[1].grid(alpha=0.3)
+    return fig

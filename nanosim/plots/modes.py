@@ -1,0 +1,95 @@
+"""Mode-shape figures of the MuJoCo stage; each returns a Figure and writes nothing."""
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from nanosim.plant.modes import posed_data
+
+__all__ = ["mode_shape_figures", "mode_shape_file_name"]
+
+
+def _segments_mm(model: mujoco.MjModel, data: mujoco.MjData) -> list:
+    """Capsule/cylinder geoms of the moving mechanism as (2, 3) segments in mm."""
+    segs = []
+    lines = (int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_CYLINDER))
+    box = int(mujoco.mjtGeom.mjGEOM_BOX)
+    for g in range(model.ngeom):
+        if model.geom_bodyid[g] <= 1:
+            continue
+        c, R, size = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3), model.geom_size[g]
+        if int(model.geom_type[g]) in lines:
+            axis = R[:, 2] * size[1]
+        elif int(model.geom_type[g]) == box and size.max() > 2 * np.sort(size)[1]:
+            k = int(np.argmax(size))                  # elongated box (the levers): its long axis
+            axis = R[:, k] * size[k]
+        else:
+            continue
+        segs.append(np.stack([c - axis, c + axis]) * 1e3)
+    return segs
+
+
+def _tendons_mm(model: mujoco.MjModel, data: mujoco.MjData) -> list:
+    """Piezo tendons as (2, 3) segments in mm (first and last site of each spatial tendon)."""
+    out = []
+    for ch in ("a", "b", "c"):
+        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, n) for n in (f"{ch}_piezo_base", f"{ch}_crank_site")]
+        if min(ids) >= 0:
+            out.append(np.stack([data.site_xpos[i] for i in ids]) * 1e3)
+    return out
+
+
+def mode_shape_file_name(index: int, mode) -> str:
+    """``mode_01_176Hz.png`` for the first mode (index 0); matches ``artifacts`` pattern ``modes/mode_*.png``."""
+    return f"mode_{index + 1:02d}_{mode.freq_hz:.0f}Hz.png"
+
+
+def mode_shape_figures(model: mujoco.MjModel, result, fmax_hz: float = 1000.0,
+                       max_displacement_mm: float = 4.0) -> list:
+    """One Figure per physical mode below ``fmax_hz``: home (grey) vs exaggerated shape (red).
+
+    The shape is scaled in joint space so the largest body displacement is
+    ``max_displacement_mm``; links are drawn as their capsule segments and the
+    table's displacement as an arrow.
+
+    Returns
+    -------
+    list of (file name, matplotlib.figure.Figure)
+    """
+    from matplotlib.figure import Figure
+
+    figures = []
+    home = posed_data(model, np.zeros(model.nv), 0.0)
+    home_segs = _segments_mm(model, home)
+    tb = model.body("table").id
+    for i, mode in enumerate(result.below(fmax_hz)):
+        disp = result.body_displacement(mode)
+        scale = max_displacement_mm * 1e-3 / max(np.abs(disp).max(), 1e-12)
+        moved = posed_data(model, mode.shape_q, scale)
+        fig = Figure(figsize=(7.5, 6))
+        ax = fig.add_subplot(projection="3d")
+        for s in home_segs:
+            ax.plot(*s.T, color="0.75", lw=2.5)
+        for s in _segments_mm(model, moved):
+            ax.plot(*s.T, color="tab:red", lw=1.6)
+        for s in _tendons_mm(model, moved):
+            ax.plot(*s.T, color="tab:blue", lw=3, alpha=0.6)
+        p0, p1 = home.xpos[tb] * 1e3, moved.xpos[tb] * 1e3
+        ax.quiver(*p0, *(p1 - p0), color="tab:blue", lw=2, arrow_length_ratio=0.25)
+        ax.scatter(*p0, color="0.3", s=30, label="table, home")
+        ax.scatter(*p1, color="tab:blue", s=40, label="table, exaggerated")
+        lim = np.array([-50.0, 50.0])
+        ax.set_xlim(lim)
+        ax.set_ylim(lim)
+        ax.set_zlim(0, 50)
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_zlabel("z (mm)")
+        d = p1 - p0
+        ax.set_title(f"Mode {i + 1}: {mode.freq_hz:.1f} Hz, zeta {mode.damping_ratio:.4f}, axis {mode.axis}\n"
+                     f"grey: home; red: shape (blue: piezo tendons) scaled to {max_displacement_mm:g} mm largest motion; "
+                     f"table moves ({d[0]:+.1f}, {d[1]:+.1f}, {d[2]:+.1f}) mm", fontsize=9)
+        ax.legend(loc="upper left", fontsize=8)
+        ax.view_init(elev=22, azim=-60)
+        figures.append((mode_shape_file_name(i, mode), fig))
+    return figures
