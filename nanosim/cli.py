@@ -183,6 +183,7 @@ def _add_design_arguments(parser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``nanosim`` argument parser (one-line usage errors, exit 2)."""
     p = _OneLineParser(prog="nanosim", description=__doc__.splitlines()[0])
     p.add_argument("--version", action="version", version=f"nanosim {__version__}")
     sub = p.add_subparsers(dest="command", required=True)

@@ -45,6 +45,8 @@ STATIC_GAIN_SCALE_UM_PER_V = 3.0
 
 AXES = ("XY", "XY", "Z", "XY", "XY", "Z")
 
+AXES = ("XY", "XY", "Z", "XY", "XY", "Z")
+
 # --- paper closed-loop figures (Sec. 4-5) -----------------------------------
 PAPER_GAMMA = 1.34
 PAPER_CONTROLLER_ORDER = 19
@@ -52,5 +54,3 @@ PAPER_FIT_PERCENT = np.array([[95.9, 95.2, 96.1], [90.2, 91.8, 95.0], [95.1, 89.
 AXES = ("X", "Y", "Z")
 ACTUATORS = ("A", "B", "C")
 
-# Back-compatible names for the paper figures that describe the plant.
-from nanosim.paper import PAPER_CONTROLLER_ORDER, PAPER_FIT_PERCENT, PAPER_GAMMA, PAPER_MODE_AXES, PAPER_MODES_HZ  # noqa: E402,F401

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from nanosim import constants as C
+from nanosim import paper as P
 from nanosim.fileio import write_npz
 
 
@@ -24,7 +24,7 @@ def test_modes_json_has_the_issue_keys_and_paper_modes():
     assert {"modes", "static_gain_um_per_V", "constraint_violation_ratio"} <= set(data)
     f = [m["freq_hz"] for m in data["modes"]]
     assert f == sorted(f) and len(f) == 6
-    assert_allclose(f, C.PAPER_MODES_HZ, rtol=0.03)
+    assert_allclose(f, P.PAPER_MODES_HZ, rtol=0.03)
     assert all({"freq_hz", "damping_ratio", "axis", "sensor_participation"} <= set(m) for m in data["modes"])
 
 

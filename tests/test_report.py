@@ -19,3 +19,43 @@ def test_report_marks_bands_and_names_the_paper(tmp_path):
     assert row["S bandwidth on the stage"].rstrip(" |").endswith("yes")  # 31 >= 28
     assert row["resolution sigma, closed loop"].rstrip(" |").endswith("**NO**")
     assert "| S bandwidth (Hz) | 31 | 30 | +1 (+3 %) |" in text             # MuJoCo vs twin table
+
+
+def _png(path):
+    from matplotlib.figure import Figure
+
+    from nanosim.fileio import save_figure
+    fig = Figure(figsize=(1, 1))
+    fig.subplots().plot([0, 1])
+    save_figure(fig, path)
+
+
+def test_report_shows_every_figure_of_the_run_folder(tmp_path):
+    """Every registered figure (Fig. 18a-b included), unregistered PNGs and the twin folder's reach the report."""
+    from nanosim.pipeline import artifacts as A
+
+    made = []
+    for art in A.FIGURES:
+        rel = art.name.replace("*", "01_176Hz")
+        _png(tmp_path / rel)
+        made.append(rel)
+    _png(tmp_path / "twin" / "fig18_bandwidth_step.png")
+    _png(tmp_path / "extra_figure.png")
+    made += ["twin/fig18_bandwidth_step.png", "extra_figure.png"]
+    md, html = write_report(tmp_path)
+    text, page = md.read_text(), html.read_text()
+    for rel in made:
+        assert f"]({rel})" in text, rel
+        assert f"src='{rel}'" in page, rel
+    assert "fig18_T_KS.png" in text                       # Fig. 18a-b of the design step
+
+
+def test_every_figure_the_experiments_write_is_registered():
+    from nanosim import experiments
+    from nanosim.pipeline import artifacts as A
+
+    names = {a.name for a in A.FIGURES}
+    for name in experiments.load_builtin():
+        exp = experiments.get(name)
+        if exp.figure_name:
+            assert exp.figure_name in names, exp.figure_name

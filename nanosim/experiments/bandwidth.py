@@ -22,6 +22,7 @@ from nanosim.plots.experiments import fig_bandwidth
 
 @dataclass(frozen=True)
 class BandwidthResult:
+    """sigma(S), sigma(T) measured with PRBS references (Hz grid), their -3 dB bandwidths and the 2 um step."""
     freq_hz: np.ndarray
     sigma_S: np.ndarray
     sigma_T: np.ndarray

@@ -19,6 +19,7 @@ from nanosim.plots.experiments import fig_contouring
 
 @dataclass(frozen=True)
 class ContourCase:
+    """One speed of the 45 degree contour: trace, contour error (nm) and per-axis tracking error (um)."""
     speed_um_s: float
     trace: LoopTrace
     contour_error_nm: np.ndarray
@@ -41,6 +42,7 @@ def contour_reference(speed_um_s, corner_um=20.0, fs=FS, dwell_s=0.02, smoothing
 
 
 def contouring(factory: StageFactory, controller, seed=0, speeds_um_s=(10, 30, 100, 300, 1000)) -> list:
+    """Run the contour at each speed (um/s); returns a list of :class:`ContourCase`."""
     cases = []
     for v in speeds_um_s:
         ref = contour_reference(v)

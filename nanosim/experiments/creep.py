@@ -13,6 +13,7 @@ from nanosim.ramps import raised_cosine
 
 @dataclass(frozen=True)
 class CreepResult:
+    """Open- and closed-loop hold at the origin: readings (um) and drift over the hold (nm per axis)."""
     t_s: np.ndarray
     open_y_um: np.ndarray
     closed_y_um: np.ndarray

@@ -52,6 +52,7 @@ def _branch_gap(x, y, n_grid=400) -> float:
 
 def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel_um=20.0, levels=11,
                dwell_s=0.12) -> HysteresisResult:
+    """Open-loop loop on actuator A (0 -> 1.65 -> 0 V) and the closed-loop 20 um triangle and staircase."""
     n = int(duration_s * FS)
     tri = np.concatenate([np.linspace(0, 1, n // 2), np.linspace(1, 0, n - n // 2)])
     u = np.zeros((n, 3))

@@ -36,6 +36,7 @@ class LoopTrace:
 
     @property
     def error_um(self) -> np.ndarray:
+        """Tracking error ``ref_um - y_um`` (N, 3), um."""
         return self.ref_um - self.y_um
 
 
@@ -75,6 +76,7 @@ def plateaus(y, dwell: int, count: int):
 
 
 def step_metrics(t_s, y, final):
+    """Rise (10-90 %), peak and 2 % settling times (ms) and overshoot (%) of ``y`` normalised by ``final``."""
     y = y / final
     rise = t_s[np.argmax(y >= 0.9)] - t_s[np.argmax(y >= 0.1)]
     ipk = int(np.argmax(y))

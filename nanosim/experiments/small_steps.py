@@ -18,6 +18,7 @@ from nanosim.plots.experiments import fig_small_steps
 
 @dataclass(frozen=True)
 class SmallStepsResult:
+    """The 10 nm staircase: trace, targets and the settled plateau means and sigmas (nm)."""
     trace: LoopTrace
     targets_nm: np.ndarray
     plateau_mean_nm: np.ndarray
@@ -26,6 +27,7 @@ class SmallStepsResult:
 
 def small_steps(factory: StageFactory, controller, seed=0, step_nm=10.0, n_steps=5, dwell_s=0.15,
                 axis=0) -> SmallStepsResult:
+    """Closed-loop staircase of ``n_steps`` steps of ``step_nm`` on ``axis``, ``dwell_s`` each."""
     nd = int(dwell_s * FS)
     targets = step_nm * np.arange(n_steps + 1)
     ref = np.zeros(((n_steps + 1) * nd, 3))

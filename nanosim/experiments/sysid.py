@@ -37,6 +37,7 @@ class IdentifySettings:
 
     @property
     def offset_V(self) -> float:
+        """Operating point in controller volts (piezo volts / amplifier gain)."""
         return self.offset_piezo_V / C.AMPLIFIER_GAIN
 
 

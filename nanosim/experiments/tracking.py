@@ -19,6 +19,7 @@ from nanosim.plots.experiments import fig_tracking
 
 @dataclass(frozen=True)
 class TrackingCase:
+    """One tracking case: waveform, frequency (Hz), trace, rms and max error (nm), phase lag (deg)."""
     waveform: str
     freq_hz: float
     trace: LoopTrace
@@ -36,6 +37,7 @@ def _wave(kind, f, t, amp):
 
 def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40), amplitude_um=10.0,
              periods=3, axis=0) -> list:
+    """Triangles and sines of ``amplitude_um`` at each frequency, through the command interpolation."""
     cases = []
     for kind in ("triangle", "sine"):
         for f in freqs_hz:

@@ -33,6 +33,7 @@ class Artifact:
 
     @property
     def is_pattern(self) -> bool:
+        """True if ``name`` is a glob pattern for a family of files."""
         return any(ch in self.name for ch in "*?[")
 
 

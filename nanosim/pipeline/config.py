@@ -103,6 +103,7 @@ class DesignConfig:
 
     @property
     def has_damping_loop(self) -> bool:
+        """True if the design adds an inner damping loop (``damping_zeta > 0``)."""
         return self.damping_zeta > 0.0
 
 

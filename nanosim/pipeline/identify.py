@@ -37,6 +37,7 @@ def save_model(path, result: IdentifiedStage) -> Path:
 
 
 def identify_json(result: IdentifiedStage, extra: dict | None = None) -> dict:
+    """The content of ``identify.json``: fit factors, orders, modes, settings, DC gain, units."""
     s = result.settings
     out = {
         "fit_percent": result.fit_percent.round(2).tolist(),

@@ -10,6 +10,7 @@ import numpy as np
 
 from nanosim import constants as C
 from nanosim.fileio import write_text
+from nanosim import paper as P
 from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
 
@@ -40,7 +41,7 @@ def _rows(run: Path):
         rows.append((section, label, paper, sim, unit, ok, band))
 
     found = [m["freq_hz"] for m in modes.get("modes", [])]
-    for f, axis in zip(C.PAPER_MODES_HZ, C.PAPER_MODE_AXES):
+    for f, axis in zip(P.PAPER_MODES_HZ, P.PAPER_MODE_AXES):
         near = min(found, key=lambda x: abs(x - f)) if found else None
         add("Stage model (Sec. 3)", f"mode near {f:.0f} Hz ({axis})", f, near, "Hz",
             None if near is None else abs(near - f) <= 0.03 * f, "within 3 %")
@@ -57,7 +58,7 @@ def _rows(run: Path):
     for i, ax in enumerate(C.AXES):
         for j, act in enumerate(C.ACTUATORS):
             v = _get(fit, i, j)
-            add("Identification (Table 1)", f"fit {act} -> {ax}", float(C.PAPER_FIT_PERCENT[i, j]), v, "%",
+            add("Identification (Table 1)", f"fit {act} -> {ax}", float(P.PAPER_FIT_PERCENT[i, j]), v, "%",
                 None if v is None else v >= 90.0, ">= 90 %")
     add("Identification (Table 1)", "total model order", 39, ident.get("total_order"), "states", None, "")
     spec = [

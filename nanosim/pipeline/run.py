@@ -45,6 +45,7 @@ def write_twin_npz(out: Path, mjcf=None) -> Path:
 
 
 def step_identify(out: Path, config: IdentifyConfig, mjcf=None, progress=None) -> None:
+    """Identify the stage (``model.npz``, ``identify.json``, Figs. 4-7) into ``out``."""
     from nanosim.pipeline.identify import run_identify
     from nanosim.plant.linearize import linearize
     from nanosim.plant.mjcf import load_model
@@ -56,18 +57,21 @@ def step_identify(out: Path, config: IdentifyConfig, mjcf=None, progress=None) -
 
 
 def step_design(out: Path, config: DesignConfig, model_npz=None, mjcf=None) -> None:
+    """Reduce, design and discretize from ``model_npz`` (default ``out/model.npz``) into ``out``."""
     from nanosim.pipeline.design import run_design
 
     run_design(model_npz or out / A.MODEL_NPZ, out, config, twin=str(write_twin_npz(out, mjcf)), progress=False)
 
 
 def step_characterize(out: Path, config: CharacterizeConfig, controller_npz=None, mjcf=None) -> None:
+    """Run the registered experiments with ``controller_npz`` (default ``out/controller.npz``)."""
     from nanosim.pipeline.characterize import run_characterize
 
     run_characterize(controller_npz or out / A.CONTROLLER_NPZ, out, config, mjcf=mjcf, progress=True)
 
 
 def step_report(out: Path) -> None:
+    """Write ``report.md`` and ``report.html`` from the run folder's files."""
     from nanosim.pipeline.report import write_report
 
     write_report(out)

@@ -55,6 +55,7 @@ def check_writable(out: str | os.PathLike, name: str = "--out") -> Path:
 
 
 def sha256_file(path: Path) -> str:
+    """Hex sha256 of a file's bytes."""
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for chunk in iter(lambda: fh.read(1 << 20), b""):

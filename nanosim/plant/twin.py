@@ -32,6 +32,7 @@ class TwinStage:
         self.reset()
 
     def reset(self) -> None:
+        """Back to home with fresh electronics (same seed, same noise)."""
         self.actuators = ActuatorChain(self.config.electronics, self.config.piezo, seed=self.seed)
         self.sensors = SensorChain(self.config.electronics, seed=self.seed)
         self._x = np.zeros(self._A.shape[0])
@@ -42,6 +43,7 @@ class TwinStage:
         self.last_piezo_V = np.zeros(3)
 
     def step(self, u_V) -> np.ndarray:
+        """One 4 kHz period with command ``u_V`` (3,) controller volts; returns the sensor reading (3,) V."""
         act = self.actuators.step(u_V)
         v_eq = act.v_free_V / self.config.electronics.amplifier_gain      # equivalent controller volts
         self._v = v_eq

@@ -11,6 +11,7 @@ __all__ = ["fig_hysteresis", "fig_creep", "fig_resolution", "fig_small_steps", "
 
 
 def fig_hysteresis(r):
+    """Paper Fig. 14: open-loop hysteresis loop and closed-loop residual."""
     fig, ax = subplots(1, 2, figsize=(11, 4.4))
     for i, ax_name in enumerate("XYZ"):
         ax[0].plot(r.open_v, r.open_y_um[:, i], label=ax_name)
@@ -32,6 +33,7 @@ def fig_hysteresis(r):
 
 
 def fig_creep(r):
+    """Paper Fig. 15: creep in open and closed loop."""
     fig, ax = subplots(1, 2, figsize=(11, 4.2), sharey=False)
     for a, (y, title, d) in zip(ax, ((r.open_y_um, "open loop (inverse static gain)", r.open_drift_nm),
                                      (r.closed_y_um, "closed loop (H-infinity)", r.closed_drift_nm))):
@@ -48,6 +50,7 @@ def fig_creep(r):
 
 
 def fig_resolution(r):
+    """Paper Fig. 16: readings at rest and their PSD, open and closed loop."""
     fig, ax = subplots(2, 2, figsize=(11, 7))
     t = np.arange(len(r.open_y_nm)) / C.CONTROL_RATE_HZ
     for j, (y, lab) in enumerate(((r.open_y_nm, "open_loop"), (r.closed_y_nm, "closed_loop"))):
@@ -70,6 +73,7 @@ def fig_resolution(r):
 
 
 def fig_small_steps(r):
+    """Paper Fig. 17: the 10 nm staircase."""
     fig, ax = subplots(figsize=(8, 4))
     ax.plot(r.trace.t_s, r.trace.ref_um[:, 0] * 1e3, label="reference")
     ax.plot(r.trace.t_s, r.trace.y_um[:, 0] * 1e3, lw=0.6, label="X probe")
@@ -83,6 +87,7 @@ def fig_small_steps(r):
 
 
 def fig_bandwidth(r, predicted=None):
+    """Paper Fig. 18: measured sigma(S), sigma(T) (with the prediction) and the 2 um step."""
     fig, ax = subplots(1, 3, figsize=(14, 4.2))
     ax[0].semilogx(r.freq_hz, 20 * np.log10(r.sigma_S), label="measured on the stage (H1)")
     ax[1].semilogx(r.freq_hz, 20 * np.log10(r.sigma_T), label="measured on the stage (H1)")
@@ -113,6 +118,7 @@ def fig_bandwidth(r, predicted=None):
 
 
 def fig_tracking(cases):
+    """Paper Fig. 19: tracking of triangles and sines."""
     freqs = sorted({c.freq_hz for c in cases})
     fig, ax = subplots(2, len(freqs), figsize=(3.2 * len(freqs), 6))
     for c in cases:
@@ -132,6 +138,7 @@ def fig_tracking(cases):
 
 
 def fig_contouring(cases):
+    """Paper Fig. 20: contour error vs speed and the following errors at the fastest speed."""
     fig, ax = subplots(1, 2, figsize=(11, 4.2))
     v = [c.speed_um_s for c in cases]
     ax[0].loglog(v, [c.mean_error_nm for c in cases], "o-", label="mean contour error")

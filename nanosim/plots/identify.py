@@ -39,6 +39,7 @@ def figure_time_fit(result, col: int = 0, row: int = 0):
 
 
 def figure_bode_grid(models, labels, title, fmin=1.0, fmax=1000.0, styles=None):
+    """3x3 magnitude grid of discrete models (or (f, H) tuples), H of shape (ny, nu, F)."""
     f = np.logspace(np.log10(fmin), np.log10(fmax), 800)
     fig, ax = subplots(3, 3, figsize=(11, 8), sharex=True)
     for m, lab, sty in zip(models, labels, styles or [{}] * len(models)):
@@ -61,6 +62,7 @@ def figure_bode_grid(models, labels, title, fmin=1.0, fmax=1000.0, styles=None):
 
 
 def figure_singular_values(result):
+    """Subspace singular values per column, for order selection."""
     fig, ax = subplots(figsize=(7, 4))
     for j, c in enumerate(result.columns):
         sv = c.singular_values[:30]

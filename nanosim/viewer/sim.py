@@ -62,7 +62,8 @@ class LiveSim:
 
     def set_physics(self, physics: str) -> None:
         """``"mujoco"`` (nonlinear integrator, 20 substeps per period) or ``"linear"``
-        (MuJoCo's own linearization about home, one 12-state step per period); resets."""
+        (MuJoCo's own linearization about home, one 12-state step per period); resets.
+        """
         if physics not in PHYSICS:
             raise ValueError(f"physics: expected one of {PHYSICS}, got {physics!r}")
         if physics != self.physics:
