@@ -127,6 +127,19 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
     return path
 
 
+def write_mat(path: str | os.PathLike, data: Mapping[str, Any]) -> Path:
+    """Write a MATLAB ``.mat`` file (``scipy.io.savemat``, compressed, 1-D arrays as rows) atomically."""
+    from scipy.io import savemat
+
+    path, tmp = _atomic_target(path, ".mat")
+    try:
+        savemat(tmp, data, do_compression=True, oned_as="row")
+        _publish(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
 def write_text(path: str | os.PathLike, text: str) -> Path:
     path, tmp = _atomic_target(path, ".tmp")
     try:

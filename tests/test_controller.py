@@ -143,7 +143,7 @@ def test_closed_loop_tracking_with_designed_controller():
     a step reference is tracked (confirms u = +K e with e = r - y in the time domain)."""
     ct = pytest.importorskip("control")
     pytest.importorskip("slycot")
-    from nanosim.design import legacy as design
+    import nanosim.design as design
     from nanosim.design.weights import Weights, WeightSpec
     s = ct.tf("s")
     g = ct.ss(200 / ((10 * s + 1) * (0.05 * s + 1) ** 2))       # Skogestad & Postlethwaite Ex. 2.11

@@ -9,8 +9,10 @@ from numpy.testing import assert_allclose
 control = pytest.importorskip("control")
 pytest.importorskip("slycot")
 from nanosim import fileio  # noqa: E402
-from nanosim.design import legacy as D  # noqa: E402
+import nanosim.design as D  # noqa: E402
 from nanosim.design.controller import DiscreteController  # noqa: E402
+from nanosim.pipeline.config import DesignConfig  # noqa: E402
+from nanosim.pipeline.design import run_design  # noqa: E402
 from test_design import paper_like_plant  # noqa: E402
 
 ct = control
@@ -41,7 +43,7 @@ def test_velocity_feedback_adds_analytic_damping():
         p = closed_loop_poles(Gd)
         pm = p[np.argmin(np.abs(np.abs(p) - w))]
         assert_allclose(-pm.real / abs(pm), zeta + za, rtol=0.03)
-        assert_allclose(D._dc_gain(Gd), D._dc_gain(G), rtol=1e-9)        # Ky(0) = 0: static gain kept
+        assert_allclose(D.dc_gain(Gd), D.dc_gain(G), rtol=1e-9)        # Ky(0) = 0: static gain kept
 
 
 def test_damping_loop_rejects_bad_input():
@@ -115,7 +117,8 @@ def test_run_design_two_dof_controller_rings_less(tmp_path):
     ring = {}
     for name, zeta in (("single", None), ("damped", 0.1)):
         out = tmp_path / name
-        d = D.run_design(model, out, progress=False, damping_zeta=zeta, damping_lowpass_hz=2000.0)
+        cfg = DesignConfig.paper(damping_zeta=zeta or 0.0, damping_lowpass_hz=2000.0)
+        d = run_design(model, out, cfg, progress=False)
         z = np.load(out / "controller.npz", allow_pickle=False)
         ctrl = DiscreteController.from_npz(out / "controller.npz")
         assert ctrl.two_dof == (zeta is not None)

@@ -21,7 +21,7 @@ control = pytest.importorskip("control")
 pytest.importorskip("slycot")
 
 from nanosim import constants  # noqa: E402
-from nanosim.design import legacy as D  # noqa: E402
+import nanosim.design as D  # noqa: E402
 from nanosim.design.weights import PAPER_WEIGHTS, Weights, WeightSpec  # noqa: E402
 
 ct = control
@@ -258,9 +258,9 @@ def test_reduction_dc_gain_and_hsv(paper_case):
     G, red, _ = paper_case
     assert red.full_order == 39 and red.order == 10
     assert red.G_reduced.nstates == 10
-    dc_full = D._dc_gain(G)
+    dc_full = D.dc_gain(G)
     np.testing.assert_allclose(dc_full, 0.6 * constants.JACOBIAN_J, rtol=1e-12, atol=1e-12)
-    rel = np.max(np.abs(D._dc_gain(red.G_reduced) - dc_full)) / np.max(np.abs(dc_full))
+    rel = np.max(np.abs(D.dc_gain(red.G_reduced) - dc_full)) / np.max(np.abs(dc_full))
     assert rel <= 1e-6 and red.dc_gain_matched
     h = red.hankel_sv
     assert h.shape == (39,) and np.all(np.diff(h) <= 1e-9 * h[0])
@@ -269,7 +269,7 @@ def test_reduction_dc_gain_and_hsv(paper_case):
     assert red.reduced_stable and red.n_unstable == 0
     # balanced-truncation/SPA bound ||G - Gr||_inf <= 2 * sum(dropped HSV) on a grid
     f = D.analysis_grid_hz([G], 0.1, 5000, 800)
-    err = D._smax(D.freqresp(G, f) - D.freqresp(red.G_reduced, f)).max()
+    err = D.sigma_max(D.freqresp(G, f) - D.freqresp(red.G_reduced, f)).max()
     assert err <= red.error_bound_hinf * (1 + 1e-6)
 
 
@@ -318,7 +318,7 @@ def test_paper_like_design(paper_case, record_property):
     # physics: tight low-frequency tracking, T ~ I at low frequency
     assert d.sigma_S_at(1.0) < 0.05
     assert d.sigma_S_at(1.0, "full") < 0.05
-    Tlow = D._svals(D._loop_freq(D.freqresp(G, [0.1]), D.freqresp(d.K, [0.1]))[1])[0]
+    Tlow = D.singular_values(D.loop_freqresp(D.freqresp(G, [0.1]), D.freqresp(d.K, [0.1]))[1])[0]
     np.testing.assert_allclose(Tlow, 1.0, atol=0.01)
     # nominal S peak bounded by gamma / |Wp(inf)| = 1.5 gamma; bandwidths ordered
     assert d.S_peak_nominal <= 1.5 * d.gamma * 1.01
@@ -380,13 +380,16 @@ def test_discretization_tustin_smooth_controller():
 def test_run_design_artifacts(tmp_path):
     from scipy.io import loadmat
 
+    from nanosim.pipeline.config import DesignConfig
+    from nanosim.pipeline.design import run_design
+
     from nanosim import fileio
     G = paper_like_plant()
     Gd = ct.c2d(G, 1 / 4000, "zoh")
     model = fileio.write_npz(tmp_path / "model.npz", A=G.A, B=G.B, C=G.C, D=G.D,
                           Ad=Gd.A, Bd=Gd.B, Cd=Gd.C, Dd=Gd.D, dt=1 / 4000)
     out = tmp_path / "out"
-    d = D.run_design(model, out, progress=False)
+    d = run_design(model, out, DesignConfig.paper(), progress=False)
     assert d.controller_order == 19 and d.reduction.order == 10
     z = np.load(out / "controller.npz", allow_pickle=False)
     for k in ("Ak", "Bk", "Ck", "Dk", "Akd", "Bkd", "Ckd", "Dkd", "dt", "units"):
@@ -428,9 +431,10 @@ def test_run_design_artifacts(tmp_path):
 
 
 def test_run_design_missing_model(tmp_path):
+    from nanosim.pipeline.design import run_design
     with pytest.raises(FileNotFoundError):
-        D.run_design(tmp_path / "nope.npz", tmp_path / "out", progress=False)
+        run_design(tmp_path / "nope.npz", tmp_path / "out", progress=False)
     from nanosim import fileio
     fileio.write_npz(tmp_path / "bad.npz", A=np.eye(2), B=np.ones((2, 1)))
     with pytest.raises(ValueError, match="missing"):
-        D.run_design(tmp_path / "bad.npz", tmp_path / "out", progress=False)
+        run_design(tmp_path / "bad.npz", tmp_path / "out", progress=False)

@@ -49,7 +49,7 @@ def test_contour_reference_is_the_45_degree_line_at_the_given_speed():
 @pytest.fixture(scope="module")
 def simple_controller():
     """The paper's mixed-sensitivity design on the reduced linear twin (no identification needed)."""
-    from nanosim.design.legacy import design_hinf, discretize_controller, reduce_model
+    from nanosim.design import design_hinf, discretize_controller, reduce_model
 
     twin = linearize(Stage(config=StageConfig.ideal()))
     red = reduce_model(twin.sys_V, order=10)

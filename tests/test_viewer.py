@@ -190,7 +190,7 @@ def test_busy_port(capsys):
 def test_live_closed_loop_tracks_a_reference(tmp_path):
     """The viewer's physics thread runs the H-infinity loop (controller.npz) on the stage."""
     from nanosim.fileio import write_npz
-    from nanosim.design.legacy import design_hinf, discretize_controller, reduce_model
+    from nanosim.design import design_hinf, discretize_controller, reduce_model
     from nanosim.plant.linearize import linearize
     from nanosim.plant.stage import Stage, StageConfig
     from nanosim.viewer.sim import LiveSim, load_controller

@@ -1,1 +1,88 @@
+"""Design layer: model reduction and H-infinity mixed-sensitivity control (paper Sec. 4).
 
+Modules (no file output here; :func:`nanosim.pipeline.design.run_design` writes
+the artifacts and :mod:`nanosim.plots.design` draws the figures):
+
+* :mod:`~nanosim.design.lti` -- LTI helpers, units, sign convention, BLAS threading;
+* :mod:`~nanosim.design.reduction` -- balanced truncation, multiplicative uncertainty;
+* :mod:`~nanosim.design.weights` -- the weights Wp, Wt, Wu;
+* :mod:`~nanosim.design.hinf` -- generalized plant, assumptions, synthesis (:class:`Design`);
+* :mod:`~nanosim.design.damping` -- the inner active-damping loop (two degrees of freedom);
+* :mod:`~nanosim.design.loops` -- loop functions S, T, KS and their analysis;
+* :mod:`~nanosim.design.discretize` -- the discrete controller and its check;
+* :mod:`~nanosim.design.controller` -- the real-time discrete controller.
+
+Plant ``G``: controller V -> sensor V; controller ``K``: error ``e = r - y``
+[sensor V] -> controller V, ``u = +K e``; frequencies in Hz; frequency
+responses ``(F, ny, nu)``.
+"""
+from __future__ import annotations
+
+from nanosim.design.controller import ControllerConfig, DiscreteController
+from nanosim.design.damping import DampingLoop, damped_plant, damping_loop
+from nanosim.design.discretize import (
+    DISCRETIZATION_METHODS,
+    Discretization,
+    dc_gain_discrete,
+    discrete_closed_loop,
+    discretization_error,
+    discretize_controller,
+    error_rel_to_peak,
+)
+from nanosim.design.hinf import AssumptionReport, Design, check_assumptions, design_hinf, generalized_plant
+from nanosim.design.loops import (
+    MODE_BAND_HZ,
+    LoopAnalysis,
+    analyse_loop,
+    feedback_operator,
+    loop_freqresp,
+    loop_functions,
+    min_damping,
+    stack_inputs,
+)
+from nanosim.design.lti import (
+    AXIS_RTOL,
+    BANDWIDTH_DEFINITIONS,
+    INV_SQRT2,
+    SIGN_CONVENTION,
+    UNITS,
+    analysis_grid_hz,
+    as_ss,
+    crossing_hz,
+    db,
+    dc_gain,
+    freqresp,
+    load_state_space_npz,
+    max_real_pole,
+    refine_peak,
+    sigma_max,
+    single_threaded_blas,
+    singular_values,
+    static_gain,
+)
+from nanosim.design.reduction import Reduction, multiplicative_uncertainty, reduce_model
+from nanosim.design.weights import PAPER_WEIGHTS, WEIGHT_NAMES, Weights, WeightSpec, paper_weights
+
+__all__ = [
+    # lti
+    "SIGN_CONVENTION", "UNITS", "INV_SQRT2", "BANDWIDTH_DEFINITIONS", "AXIS_RTOL",
+    "as_ss", "static_gain", "dc_gain", "freqresp", "sigma_max", "singular_values", "db",
+    "max_real_pole", "crossing_hz", "analysis_grid_hz", "refine_peak", "load_state_space_npz",
+    "single_threaded_blas",
+    # weights
+    "WeightSpec", "Weights", "PAPER_WEIGHTS", "paper_weights", "WEIGHT_NAMES",
+    # reduction
+    "Reduction", "reduce_model", "multiplicative_uncertainty",
+    # hinf
+    "AssumptionReport", "check_assumptions", "generalized_plant", "Design", "design_hinf",
+    # damping
+    "DampingLoop", "damping_loop", "damped_plant",
+    # loops
+    "loop_functions", "loop_freqresp", "LoopAnalysis", "analyse_loop", "min_damping", "MODE_BAND_HZ",
+    "stack_inputs", "feedback_operator",
+    # discretize
+    "Discretization", "DISCRETIZATION_METHODS", "discretize_controller", "discretization_error",
+    "discrete_closed_loop", "error_rel_to_peak", "dc_gain_discrete",
+    # controller
+    "ControllerConfig", "DiscreteController",
+]

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["new_figure", "subplots", "magnitude_db", "bode_grid", "ACTUATOR_NAMES", "AXIS_NAMES"]
+__all__ = ["new_figure", "subplots", "magnitude_db", "bode_grid", "channel_names", "ACTUATOR_NAMES",
+           "AXIS_NAMES"]
 
 ACTUATOR_NAMES = ("A", "B", "C")
 AXIS_NAMES = ("X", "Y", "Z")
@@ -30,6 +31,11 @@ def magnitude_db(x) -> np.ndarray:
 
 def _names(n, base):
     return base if n == len(base) else tuple(f"{i + 1}" for i in range(n))
+
+
+def channel_names(n: int, base: tuple[str, ...]) -> tuple[str, ...]:
+    """Channel labels: ``base`` (e.g. :data:`AXIS_NAMES`) if it has ``n`` names, else ``("1", ..., "n")``."""
+    return _names(n, base)
 
 
 def bode_grid(title, curves, freq_hz, ylabel="magnitude [dB]", in_names=None, out_names=None, ylim=None,

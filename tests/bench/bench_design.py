@@ -31,7 +31,7 @@ pytest.importorskip("pytest_benchmark")
 
 from scipy.linalg import solve_continuous_are  # noqa: E402
 
-from nanosim.design import legacy as D  # noqa: E402
+import nanosim.design as D  # noqa: E402
 
 
 def _paper_like_plant():
@@ -86,7 +86,7 @@ def test_bench_hinfsyn(benchmark, problem):
     with BLAS limited to one thread as nanosim.design does; one extra run with the
     default OpenBLAS threading is recorded for comparison."""
     G, red, P = problem
-    with D._single_thread_blas():
+    with D.single_threaded_blas():
         base = _baselines(G, P)
         t_syn = _best(lambda: ct.hinfsyn(P, 3, 3), repeat=5)
         K, _, gamma, _ = benchmark(ct.hinfsyn, P, 3, 3)
@@ -102,7 +102,7 @@ def test_bench_hinfsyn(benchmark, problem):
 def test_bench_design_hinf(benchmark, problem):
     """Whole design_hinf: checks + synthesis + closed-loop analysis with the full model."""
     G, red, P = problem
-    with D._single_thread_blas():
+    with D.single_threaded_blas():
         base = _baselines(G, P)
     t_des = _best(lambda: D.design_hinf(red.G_reduced, None, G_full=G), repeat=3)
     d = benchmark.pedantic(D.design_hinf, args=(red.G_reduced, None), kwargs={"G_full": G}, rounds=3, iterations=1)
@@ -113,7 +113,7 @@ def test_bench_design_hinf(benchmark, problem):
 def test_bench_discretize(benchmark, problem):
     G, red, P = problem
     d = D.design_hinf(red.G_reduced, None)
-    with D._single_thread_blas():
+    with D.single_threaded_blas():
         base = _baselines(G, P)
     t_disc = _best(lambda: D.discretize_controller(d.K), repeat=3)
     disc = benchmark.pedantic(D.discretize_controller, args=(d.K,), rounds=3, iterations=1)

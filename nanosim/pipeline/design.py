@@ -1,0 +1,255 @@
+"""``nanosim design``: reduce, synthesize, discretize and export (paper Sec. 4).
+
+The only part of the design layer that writes files. Steps (paper = DOI
+10.1115/1.2936861, Sec. 4.1-4.2, Appendix B):
+
+1. :func:`~nanosim.design.reduction.reduce_model` -- DC-matched balanced truncation;
+2. :func:`~nanosim.design.reduction.multiplicative_uncertainty` -- its error ``E_o``;
+3. :func:`~nanosim.design.damping.damping_loop` (``DesignConfig.damping_zeta > 0``,
+   beyond the paper) -- the inner active-damping loop, closed first;
+4. :func:`~nanosim.design.hinf.design_hinf` -- mixed-sensitivity synthesis on the
+   (damped) reduced model, analysed with the full and twin plants;
+5. :func:`~nanosim.design.discretize.discretize_controller` -- the 4 kHz controller;
+6. ``controller.npz``, ``reduced_model.npz``, ``design.json``, ``design.mat`` and the
+   registered design figures (:data:`nanosim.pipeline.artifacts.FIGURES`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from nanosim import constants, fileio
+from nanosim.design.damping import damped_plant, damping_loop
+from nanosim.design.discretize import (
+    dc_gain_discrete,
+    discrete_closed_loop,
+    discretize_controller,
+    error_rel_to_peak,
+)
+from nanosim.design.hinf import Design, design_hinf
+from nanosim.design.loops import feedback_operator, stack_inputs
+from nanosim.design.lti import (
+    SIGN_CONVENTION,
+    UNITS,
+    analysis_grid_hz,
+    as_ss,
+    db,
+    load_state_space_npz,
+    single_threaded_blas,
+)
+from nanosim.design.reduction import multiplicative_uncertainty, reduce_model
+from nanosim.design.weights import Weights
+from nanosim.paper import PAPER
+from nanosim.pipeline import artifacts as A
+from nanosim.pipeline.config import DesignConfig
+from nanosim.plots.design import (
+    plot_closed_loop_bode,
+    plot_controller_bode,
+    plot_hankel,
+    plot_reduction_bode,
+    plot_sensitivity,
+    plot_T_KS,
+    plot_uncertainty,
+    plot_weights,
+)
+
+__all__ = ["run_design"]
+
+
+class _Progress:
+    def __init__(self, enabled: bool):
+        self.enabled = enabled
+        self.t0 = time.perf_counter()
+
+    def __call__(self, msg: str):
+        if self.enabled:
+            print(f"[nanosim.design {time.perf_counter() - self.t0:7.2f} s] {msg}", file=sys.stderr, flush=True)
+
+
+@single_threaded_blas
+def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=None, progress: bool = False,
+               dt: float | None = None) -> Design:
+    """Reduce, design, discretize and export (paper Sec. 4).
+
+    Parameters
+    ----------
+    model_npz : path
+        Identified model: continuous ``A, B, C, D`` (required; controller V ->
+        sensor V) and optionally discrete ``Ad, Bd, Cd, Dd, dt``.
+    out_dir : path
+        Output directory (created). Files are written atomically.
+    config : DesignConfig, optional
+        Reduced order, damping loop (``damping_zeta = 0``: the paper's single
+        loop; else the controller has inputs ``[e; y]``, ``n_error = 3``),
+        weights (``None``: the paper's; a :class:`~nanosim.design.weights.Weights`,
+        mapping or .json/.toml path), discretization method and ``gamma_relax``.
+        Default ``DesignConfig()``.
+    twin : control.StateSpace or path to an ``.npz`` with ``A, B, C, D``, optional
+        Independent plant for a closed-loop stability check.
+    progress : bool, default False
+        Print stage messages to stderr.
+    dt : float, optional
+        Controller sample time [s]; default the model's ``dt`` or 1/4000.
+
+    Returns
+    -------
+    Design
+        With ``reduction`` and ``discretization`` set.
+
+    Notes
+    -----
+    Writes ``controller.npz`` (``Ak, Bk, Ck, Dk`` continuous; ``Akd, Bkd, Ckd, Dkd,
+    dt`` discrete; string arrays ``units``, ``sign_convention``, ``method``),
+    ``reduced_model.npz``, ``design.json``, ``design.mat`` and the PNG figures of
+    the ``design`` step registered in :data:`nanosim.pipeline.artifacts.FIGURES`
+    (``fig08_hankel_sv.png`` ... ``fig22_controller_bode.png``).
+    """
+    import control as ct
+    cfg = DesignConfig() if config is None else config
+    damping_zeta = cfg.damping_zeta if cfg.has_damping_loop else None
+    say = _Progress(progress)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    G_full, Gd_full = load_state_space_npz(model_npz)
+    say(f"loaded {model_npz}: {G_full.nstates} states, {G_full.noutputs}x{G_full.ninputs}")
+    W = Weights.coerce(cfg.weights)
+    W.check()
+    G_twin = None
+    if twin is not None:
+        G_twin = load_state_space_npz(twin)[0] if isinstance(twin, (str, os.PathLike)) else as_ss("twin", twin)
+    if dt is None:
+        dt = Gd_full.dt if Gd_full is not None else constants.CONTROL_PERIOD_S
+    timings = {}
+    t = time.perf_counter()
+    red = reduce_model(G_full, cfg.reduced_order)
+    timings["reduction_s"] = time.perf_counter() - t
+    say(f"reduced to {red.order} states; DC gain rel. error {red.dc_gain_rel_error:.2e}; "
+        f"HSV kept >= {red.hsv_kept.min() if red.hsv_kept.size else float('nan'):.3g}, "
+        f"dropped <= {red.hsv_dropped.max() if red.hsv_dropped.size else 0:.3g}")
+    dl = None
+    if damping_zeta is not None:
+        dl = damping_loop(red.G_reduced, damping_zeta, lowpass_hz=cfg.damping_lowpass_hz)
+        say(f"damping loop: +{dl.zeta_added:g} damping at {dl.mode_hz:.1f} Hz, low-pass {dl.lowpass_hz:g} Hz")
+    t = time.perf_counter()
+    d = design_hinf(damped_plant(red.G_reduced, dl), W, G_full=damped_plant(G_full, dl),
+                    G_twin=damped_plant(G_twin, dl), gamma_relax=cfg.gamma_relax)
+    d = dataclasses.replace(d, damping=dl)
+    timings["synthesis_and_analysis_s"] = time.perf_counter() - t
+    say(f"H-infinity: gamma = {d.gamma:.4f}, controller order {d.controller_order}, "
+        f"||S|| nominal {d.S_peak_nominal:.3f}, full {d.S_peak_full:.3f}, "
+        f"BW S {d.bandwidth_S_hz:.1f} Hz, BW T {d.bandwidth_T_hz:.1f} Hz, stable full: {d.stable_full}")
+    t = time.perf_counter()
+    K2 = d.controller_2dof()
+    disc = discretize_controller(d.K, dt, cfg.discretization)
+    disc_y = None
+    Kd2 = disc.Kd
+    if dl is not None:
+        # Tustin (per-mode prewarp) maps s = 0 to z = 1, so Ky_d(1) = Ky(0) = 0 exactly: a constant
+        # reading (the Z probe's offset at home) must not leak into u through the damping loop.
+        disc_y = discretize_controller(dl.Ky, dt, "tustin_modal")
+        Kd2 = stack_inputs(disc.Kd, disc_y.Kd)
+    timings["discretization_s"] = time.perf_counter() - t
+    say(f"discretized at {1 / dt:.0f} Hz with {disc.method}: max rel. error below {disc.f_check_hz:.0f} Hz "
+        f"= {disc.max_rel_error:.3g} (Tustin: {disc.tustin_max_rel_error:.3g})")
+    Gd = Gd_full if (Gd_full is not None and abs(Gd_full.dt - dt) <= 1e-12 * dt) else ct.c2d(G_full, dt, "zoh")
+    ny = G_full.noutputs
+    stable_d, rho_d = discrete_closed_loop(Gd, feedback_operator(Kd2, ny))
+    stable_d_tustin = None
+    if disc.method != "tustin":
+        stable_d_tustin = discrete_closed_loop(Gd, feedback_operator(ct.c2d(K2, dt, "tustin"), ny))[0]
+
+    # --- uncertainty summary (paper Fig. 10 statements)
+    fe = analysis_grid_hz([G_full, red.G_reduced], 1.0, 2000.0, 1500)
+    eo = multiplicative_uncertainty(G_full, red.G_reduced, fe)
+    eo_db = db(eo)
+
+    # --- artifacts
+    Kd = Kd2
+    io_units = (["u = Ck x + Dk e (continuous: dx/dt = Ak x + Bk e; discrete: x[k+1] = Akd x[k] + Bkd e[k])"]
+                if dl is None else
+                ["inputs [e; y]: e = r - y (n_error = 3 columns), then the measurement y in sensor volts",
+                 "u = Ck x + Dk [e; y] (continuous: dx/dt = Ak x + Bk [e; y]; discrete likewise with Akd..Dkd)"])
+    units = np.array(["e: tracking error r - y in sensor volts (X,Y,Z), 5 um/V",
+                      "u: controller volts for actuators A,B,C (before the x20 amplifier)", *io_units,
+                      "dt in seconds"])
+    fileio.write_npz(out / A.CONTROLLER_NPZ, Ak=K2.A, Bk=K2.B, Ck=K2.C, Dk=K2.D,
+                     Akd=Kd.A, Bkd=Kd.B, Ckd=Kd.C, Dkd=Kd.D, dt=np.float64(dt), gamma=np.float64(d.gamma),
+                     n_error=np.int64(ny), units=units, sign_convention=np.array(SIGN_CONVENTION),
+                     method=np.array(disc.method))
+    fileio.write_npz(out / A.REDUCED_MODEL_NPZ, A=red.G_reduced.A, B=red.G_reduced.B, C=red.G_reduced.C,
+                     D=red.G_reduced.D, hankel_sv=red.hankel_sv, units=np.array(UNITS["plant_G"]))
+    mat = {"G_A": G_full.A, "G_B": G_full.B, "G_C": G_full.C, "G_D": G_full.D,
+           "Gr_A": red.G_reduced.A, "Gr_B": red.G_reduced.B, "Gr_C": red.G_reduced.C, "Gr_D": red.G_reduced.D,
+           "K_A": K2.A, "K_B": K2.B, "K_C": K2.C, "K_D": K2.D, "K_n_error": ny,
+           "Kd_A": Kd.A, "Kd_B": Kd.B, "Kd_C": Kd.C, "Kd_D": Kd.D, "Ts": float(dt), "gamma": d.gamma,
+           "hankel_sv": red.hankel_sv,
+           "units": UNITS["plant_G"] + "; K: " + UNITS["controller_K"], "sign_convention": SIGN_CONVENTION}
+    for nm in ("Wp", "Wt", "Wu"):
+        w = getattr(W, nm)
+        if w is not None:   # W(s) = (num/den)^power, descending powers of s
+            mat.update({f"{nm}_num": np.array(w.num), f"{nm}_den": np.array(w.den), f"{nm}_power": w.power})
+    fileio.write_mat(out / A.DESIGN_MAT, mat)
+
+    summary = d.summary()
+    summary.update({
+        "reduced_order": red.order, "full_order": red.full_order, "hankel_sv": red.hankel_sv,
+        "hankel_sv_kept_min": float(red.hsv_kept.min()) if red.hsv_kept.size else None,
+        "hankel_sv_dropped_max": float(red.hsv_dropped.max()) if red.hsv_dropped.size else None,
+        "reduction_error_bound_hinf": red.error_bound_hinf,
+        "dc_gain_rel_error": red.dc_gain_rel_error, "dc_gain_full": red.dc_gain_full,
+        "dc_gain_reduced": red.dc_gain_reduced, "full_model_unstable_poles": int(red.n_unstable),
+        "Eo_max_dB_below_140Hz": float(eo_db[fe <= 140].max()),
+        "Eo_min_dB_above_600Hz": float(eo_db[fe >= 600].min()) if np.any(fe >= 600) else None,
+        "Eo_max_dB": float(eo_db.max()), "Eo_peak_hz": float(fe[int(np.argmax(eo_db))]),
+        "weights": W.to_dict(),
+        "dt_s": float(dt), "discretization_method": disc.method,
+        "discretization_max_rel_error_below_500hz": disc.max_rel_error if disc.f_check_hz == 500.0 else None,
+        "discretization_max_rel_error": disc.max_rel_error, "discretization_check_band_hz": disc.f_check_hz,
+        "discretization_worst_freq_hz": disc.worst_freq_hz,
+        "discretization_errors_by_method": disc.errors_by_method,
+        "tustin_max_rel_error_below_500hz": disc.tustin_max_rel_error,
+        "discretization_within_1_percent": disc.within_tol,
+        "damping_loop_discretization": None if disc_y is None else {
+            "method": disc_y.method,
+            "max_error_rel_to_peak_below_500hz": error_rel_to_peak(dl.Ky, disc_y.Kd, 500.0),
+            "dc_gain_abs_max": float(np.abs(dc_gain_discrete(disc_y.Kd)).max())},
+        "stable_discrete_full": stable_d, "spectral_radius_discrete_full": rho_d,
+        "stable_discrete_full_with_plain_tustin": stable_d_tustin,
+        "units": UNITS,
+        "paper_targets": {"gamma": PAPER["gamma"], "controller_order": PAPER["order"],
+                          "S_peak_nominal_max": PAPER["S_nom"], "S_peak_full_model_max": PAPER["S_full"],
+                          "bandwidth_S_hz": PAPER["bwS"], "bandwidth_T_hz": PAPER["bwT"]},
+        "timings_s": timings, "gamma_relax": float(cfg.gamma_relax),
+        "inputs": {"model_npz": str(model_npz),
+                   "twin": None if twin is None else (str(twin) if isinstance(twin, (str, os.PathLike))
+                                                      else f"StateSpace, {G_twin.nstates} states")},
+    })
+    try:
+        import control as _c
+        import slycot as _s
+        summary["versions"] = {"control": _c.__version__, "slycot": _s.__version__, "numpy": np.__version__}
+    except Exception:  # pragma: no cover
+        pass
+    fileio.write_json(out / A.DESIGN_JSON, summary)
+
+    say("writing figures")
+    figs = {
+        "fig08_hankel_sv.png": plot_hankel(red),
+        "fig09_reduction_bode.png": plot_reduction_bode(red),
+        "fig10_uncertainty.png": plot_uncertainty(red),
+        "fig11b_weights.png": plot_weights(W),
+        "fig12_sensitivity.png": plot_sensitivity(d),
+        "fig18_T_KS.png": plot_T_KS(d),
+        "fig21_closed_loop_bode.png": plot_closed_loop_bode(d),
+        "fig22_controller_bode.png": plot_controller_bode(d, disc),
+    }
+    for name, fig in figs.items():
+        fileio.save_figure(fig, out / A.figure(name).name)
+    say(f"done in {time.perf_counter() - t_start:.1f} s -> {out}")
+    return dataclasses.replace(d, reduction=red, discretization=disc)
