@@ -141,6 +141,7 @@ def write_mat(path: str | os.PathLike, data: Mapping[str, Any]) -> Path:
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically."""
     path, tmp = _atomic_target(path, ".tmp")
     try:
         tmp.write_text(text)

@@ -93,7 +93,7 @@ def test_missing_file_and_keys(tmp_path):
     with pytest.raises(ValueError, match="Dkd"):
         DiscreteController.from_npz(tmp_path / "nokey.npz")
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(ValueError, match="readable"):
+    with pytest.raises(ValueError, match="not an .npz file"):
         DiscreteController.from_npz(tmp_path / "junk.npz")
 
 

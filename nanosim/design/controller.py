@@ -1,6 +1,6 @@
 """Real-time discrete H-infinity controller (runs at the 4 kHz control rate).
 
-Loads the discrete controller written by :func:`nanosim.design.run_design`
+Loads the discrete controller written by :func:`nanosim.pipeline.design.run_design`
 (``controller.npz``: ``Akd, Bkd, Ckd, Dkd, dt``) and implements::
 
     x[k+1] = Akd x[k] + Bkd e[k]
@@ -133,7 +133,7 @@ class ControllerConfig:
 
     @property
     def spectral_radius(self) -> float:
-        """max |eig(Akd)| (< 1 for a stable controller)."""
+        """Max |eig(Akd)| (< 1 for a stable controller)."""
         return float(np.max(np.abs(np.linalg.eigvals(self.Akd)))) if self.n_states else 0.0
 
 
@@ -167,7 +167,8 @@ class DiscreteController:
     @classmethod
     def from_matrices(cls, Akd, Bkd, Ckd, Dkd, dt: float, n_error: int | None = None) -> "DiscreteController":
         """Build from the four discrete matrices and the sample time [s]
-        (``n_error``: see :class:`ControllerConfig`)."""
+        (``n_error``: see :class:`ControllerConfig`).
+        """
         return cls(ControllerConfig(Akd, Bkd, Ckd, Dkd, dt, n_error))
 
     @classmethod
@@ -231,7 +232,8 @@ class DiscreteController:
 
     def reset_at(self, measurement_V) -> None:
         """Start a loop at the reading ``measurement_V`` [sensor V]: zero state, or for a
-        two-degree-of-freedom controller the equilibrium at that reading (see :meth:`reset`)."""
+        two-degree-of-freedom controller the equilibrium at that reading (see :meth:`reset`).
+        """
         if self.two_dof:
             self.reset(measurement_V=measurement_V)
         else:
@@ -240,7 +242,8 @@ class DiscreteController:
     # --- stepping ----------------------------------------------------------------------
     def feedback(self, reference_V, measurement_V) -> np.ndarray:
         """One closed-loop sample: ``step(r - y)``, or ``step(r - y, y)`` for a
-        two-degree-of-freedom controller (``r``, ``y`` in sensor V)."""
+        two-degree-of-freedom controller (``r``, ``y`` in sensor V).
+        """
         y = np.asarray(measurement_V, dtype=float)
         e = np.asarray(reference_V, dtype=float) - y
         return self.step(e, y) if self.two_dof else self.step(e)

@@ -90,7 +90,8 @@ class WeightSpec:
     @classmethod
     def from_value(cls, value: Any, name: str = "W") -> "WeightSpec":
         """Build from a number (static weight), a mapping with ``num``/``den``/
-        ``power`` keys, or another :class:`WeightSpec` (renamed to ``name``)."""
+        ``power`` keys, or another :class:`WeightSpec` (renamed to ``name``).
+        """
         if isinstance(value, WeightSpec):
             return cls(value.num, value.den, value.power, name=name)
         if isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool):
@@ -176,7 +177,8 @@ class WeightSpec:
 
     def ss(self):
         """SISO ``control.StateSpace``: ``power`` copies of ``num/den`` in series
-        (better conditioned than expanding the power into one polynomial)."""
+        (better conditioned than expanding the power into one polynomial).
+        """
         import control as ct
         base = ct.ss(ct.tf(list(self.num), list(self.den)))
         out = base
@@ -285,7 +287,8 @@ class Weights:
 
     def to_dict(self) -> dict:
         """``{"Wp": {...}, "Wt": {...}, "Wu": {...}}`` with num/den/power lists
-        (``None`` for an omitted weight)."""
+        (``None`` for an omitted weight).
+        """
         return {k: None if getattr(self, k) is None else getattr(self, k).to_dict() for k in WEIGHT_NAMES}
 
     def check(self) -> None:
@@ -296,14 +299,16 @@ class Weights:
 
     def statespace(self, ny: int, nu: int):
         """Diagonal state-space weights ``(Wp I_ny, Wu I_nu, Wt I_ny)`` in the
-        argument order of ``control.augw(G, w1, w2, w3)``; ``None`` for omitted ones."""
+        argument order of ``control.augw(G, w1, w2, w3)``; ``None`` for omitted ones.
+        """
         return (None if self.Wp is None else self.Wp.ss_diag(ny),
                 None if self.Wu is None else self.Wu.ss_diag(nu),
                 None if self.Wt is None else self.Wt.ss_diag(ny))
 
     def order_for(self, ny: int, nu: int) -> int:
         """Total weight states for an ``ny x nu`` plant (the controller order is
-        plant order + this). Paper: 3*1 + 3*0 + 3*2 = 9."""
+        plant order + this). Paper: 3*1 + 3*0 + 3*2 = 9.
+        """
         o = {k: 0 if getattr(self, k) is None else getattr(self, k).order for k in WEIGHT_NAMES}
         return ny * (o["Wp"] + o["Wt"]) + nu * o["Wu"]
 

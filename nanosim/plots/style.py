@@ -40,7 +40,7 @@ def channel_names(n: int, base: tuple[str, ...]) -> tuple[str, ...]:
 
 def bode_grid(title, curves, freq_hz, ylabel="magnitude [dB]", in_names=None, out_names=None, ylim=None,
               vlines=()):
-    """ny x nu magnitude grid.
+    """Ny x nu magnitude grid.
 
     Parameters
     ----------
