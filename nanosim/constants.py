@@ -9,6 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["CONTROL_RATE_HZ", "CONTROL_PERIOD_S", "AMPLIFIER_GAIN", "COMMAND_RANGE_V", "PIEZO_MAX_V",
+           "PIEZO_FREE_STROKE_M", "PIEZO_BLOCKING_FORCE_N", "PIEZO_STIFFNESS_N_PER_M",
+           "PIEZO_FORCE_PER_PIEZO_V", "SENSOR_UM_PER_V", "SENSOR_RANGE_UM", "SENSOR_NOISE_NM_RMS_1KHZ",
+           "ADC_BITS", "ADC_FULL_SCALE_V", "ADC_LSB_V", "ADC_LSB_NM", "JACOBIAN_J",
+           "STATIC_GAIN_SCALE_UM_PER_V", "AXES", "ACTUATORS"]
+
 # --- control loop (paper Sec. 3) --------------------------------------------
 CONTROL_RATE_HZ = 4000.0
 CONTROL_PERIOD_S = 1.0 / CONTROL_RATE_HZ
@@ -43,14 +49,7 @@ JACOBIAN_J = np.array([[-2.022, -1.190, 3.212],
 # V/V = -6.0 um/V and Fig. 14's -10 um at 1.65 V give the 3.0 scale).
 STATIC_GAIN_SCALE_UM_PER_V = 3.0
 
-AXES = ("XY", "XY", "Z", "XY", "XY", "Z")
-
-AXES = ("XY", "XY", "Z", "XY", "XY", "Z")
-
-# --- paper closed-loop figures (Sec. 4-5) -----------------------------------
-PAPER_GAMMA = 1.34
-PAPER_CONTROLLER_ORDER = 19
-PAPER_FIT_PERCENT = np.array([[95.9, 95.2, 96.1], [90.2, 91.8, 95.0], [95.1, 89.9, 88.5]])
+# --- names -------------------------------------------------------------------
 AXES = ("X", "Y", "Z")
 ACTUATORS = ("A", "B", "C")
 

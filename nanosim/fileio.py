@@ -13,6 +13,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+__all__ = ["write_json", "write_npz", "load_npz", "save_figure", "write_mat", "write_text"]
+
 
 def _atomic_target(path: str | os.PathLike, suffix: str):
     path = Path(path)

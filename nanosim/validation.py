@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["as_finite_array"]
+
 
 def as_finite_array(name: str, value, shape: tuple | None = None, ndim: int | None = None) -> np.ndarray:
     """Return ``value`` as a float array, checking shape and finiteness.

@@ -116,10 +116,12 @@ class ControllerConfig:
 
     @property
     def n_states(self) -> int:
+        """Controller states."""
         return self.Akd.shape[0]
 
     @property
     def n_in(self) -> int:
+        """Controller inputs (errors, then measurements for a two-degree-of-freedom controller)."""
         return self.Bkd.shape[1]
 
     @property
@@ -129,6 +131,7 @@ class ControllerConfig:
 
     @property
     def n_out(self) -> int:
+        """Controller outputs (controller volts, one per actuator)."""
         return self.Ckd.shape[0]
 
     @property

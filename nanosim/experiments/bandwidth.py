@@ -19,10 +19,13 @@ from nanosim.experiments.registry import Experiment, register
 from nanosim.plant.linearize import linearize
 from nanosim.plots.experiments import fig_bandwidth
 
+__all__ = ["BandwidthResult", "bandwidth", "predicted_loop"]
+
 
 @dataclass(frozen=True)
 class BandwidthResult:
     """sigma(S), sigma(T) measured with PRBS references (Hz grid), their -3 dB bandwidths and the 2 um step."""
+
     freq_hz: np.ndarray
     sigma_S: np.ndarray
     sigma_T: np.ndarray

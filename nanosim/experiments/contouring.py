@@ -16,10 +16,13 @@ from nanosim.experiments.loop import (
 from nanosim.experiments.registry import Experiment, register
 from nanosim.plots.experiments import fig_contouring
 
+__all__ = ["ContourCase", "contour_reference", "contouring"]
+
 
 @dataclass(frozen=True)
 class ContourCase:
     """One speed of the 45 degree contour: trace, contour error (nm) and per-axis tracking error (um)."""
+
     speed_um_s: float
     trace: LoopTrace
     contour_error_nm: np.ndarray

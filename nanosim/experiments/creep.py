@@ -10,10 +10,13 @@ from nanosim.experiments.registry import Experiment, register
 from nanosim.plots.experiments import fig_creep
 from nanosim.ramps import raised_cosine
 
+__all__ = ["CreepResult", "creep"]
+
 
 @dataclass(frozen=True)
 class CreepResult:
     """Open- and closed-loop hold at the origin: readings (um) and drift over the hold (nm per axis)."""
+
     t_s: np.ndarray
     open_y_um: np.ndarray
     closed_y_um: np.ndarray

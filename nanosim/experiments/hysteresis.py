@@ -16,6 +16,8 @@ from nanosim.experiments.registry import Experiment, register
 from nanosim.plant.piezo import loop_hysteresis_percent
 from nanosim.plots.experiments import fig_hysteresis
 
+__all__ = ["HysteresisResult", "hysteresis"]
+
 
 @dataclass(frozen=True)
 class HysteresisResult:

@@ -10,10 +10,13 @@ from nanosim.experiments.loop import FS, StageFactory, run_closed_loop
 from nanosim.experiments.registry import Experiment, register
 from nanosim.plots.experiments import fig_resolution
 
+__all__ = ["ResolutionResult", "resolution"]
+
 
 @dataclass(frozen=True)
 class ResolutionResult:
     """Readings at rest (nm), their sigma and 95.45 / 99.73 % bands, and Welch PSDs (nm^2/Hz)."""
+
     open_y_nm: np.ndarray
     closed_y_nm: np.ndarray
     sigma_nm: dict

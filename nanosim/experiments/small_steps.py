@@ -15,10 +15,13 @@ from nanosim.experiments.loop import (
 from nanosim.experiments.registry import Experiment, register
 from nanosim.plots.experiments import fig_small_steps
 
+__all__ = ["SmallStepsResult", "small_steps"]
+
 
 @dataclass(frozen=True)
 class SmallStepsResult:
     """The 10 nm staircase: trace, targets and the settled plateau means and sigmas (nm)."""
+
     trace: LoopTrace
     targets_nm: np.ndarray
     plateau_mean_nm: np.ndarray

@@ -16,10 +16,13 @@ from nanosim.experiments.loop import (
 from nanosim.experiments.registry import Experiment, register
 from nanosim.plots.experiments import fig_tracking
 
+__all__ = ["TrackingCase", "tracking"]
+
 
 @dataclass(frozen=True)
 class TrackingCase:
     """One tracking case: waveform, frequency (Hz), trace, rms and max error (nm), phase lag (deg)."""
+
     waveform: str
     freq_hz: float
     trace: LoopTrace

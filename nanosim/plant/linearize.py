@@ -26,6 +26,8 @@ from nanosim import constants as C
 from nanosim.plant.mechanics import mechanical_matrices
 from nanosim.plant.modes import linearize_fd, volts_to_force_N
 
+__all__ = ["LinearTwin", "linearize"]
+
 
 @dataclass(frozen=True)
 class LinearTwin:
@@ -50,6 +52,7 @@ class LinearTwin:
 
     @property
     def dc_gain_um_per_V(self) -> np.ndarray:
+        """Static gain of the twin, um per controller V, shape (3, 3)."""
         return np.real(ct.dcgain(self.sys_um))
 
 

@@ -22,6 +22,8 @@ import mujoco
 import numpy as np
 import scipy.linalg as sla
 
+__all__ = ["MechanicalMatrices", "home_data", "mechanical_matrices", "static_compliance", "reduced_modes"]
+
 
 @dataclass(frozen=True)
 class MechanicalMatrices:

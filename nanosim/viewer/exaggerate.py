@@ -14,6 +14,9 @@ import numpy as np
 
 from nanosim.plant.mechanics import home_data, mechanical_matrices
 
+__all__ = ["LINK_LENGTH_M", "exaggerate_q", "Exaggerator", "project_closures", "closure_error",
+           "static_deflection_q", "table_displacement_m"]
+
 LINK_LENGTH_M = 0.020   # typical link length, the yardstick for closure errors
 
 

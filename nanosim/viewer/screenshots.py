@@ -11,6 +11,8 @@ import sys
 import time
 from pathlib import Path
 
+__all__ = ["CHROMIUM", "CHROMIUM_ARGS", "free_port", "wait_until", "main"]
+
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
                  "--use-angle=swiftshader", "--disable-background-networking", "--disable-component-update",

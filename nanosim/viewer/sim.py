@@ -21,6 +21,8 @@ from nanosim.plant.linearize import linearize
 from nanosim.plant.stage import Stage, StageConfig
 from nanosim.plant.twin import TwinStage
 
+__all__ = ["load_controller", "PHYSICS", "LiveSim"]
+
 
 def load_controller(path):
     """DiscreteController from an .npz file. FileNotFoundError with one line if missing."""

@@ -9,6 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = ["PRESETS", "Waveform", "step", "triangle", "contour", "contour_period_s"]
+
 PRESETS = ("hold", "step", "sine", "triangle", "contour")
 
 
