@@ -23,7 +23,8 @@ from .fit import fit_percent
 from .freq import H1Estimate, frequency_response, h1_estimate
 from .modal import Modes, continuous_poles, modes_from_model
 from .signals import Excitation, Spectrum, paper_excitation, prbs, prbs_hold_samples, signal_spectrum
-from .subspace import IdentifiedModel, default_horizon, estimate_x0, predict, select_order, simulate, subspace_id
+from .simulation import estimate_x0, predict, simulate
+from .subspace import IdentifiedModel, default_horizon, select_order, subspace_id
 
 __all__ = [
     "prbs",

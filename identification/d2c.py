@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import frozen_array, positive_float, state_space
+from .checks import frozen_array, positive_float, state_space
 
 __all__ = ["ContinuousModel", "d2c_tustin", "d2c_zoh", "d2c"]
 

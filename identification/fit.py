@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._checks import as_signal, same_length
+from .checks import as_signal, same_length
 
 __all__ = ["fit_percent"]
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal as _sig
 
-from ._checks import (
+from .checks import (
     as_signal,
     frozen_array,
     not_degenerate,
@@ -34,14 +34,14 @@ class H1Estimate:
     ----------
     freq_hz : numpy.ndarray, shape (n_freq,)
         Frequencies in Hz (0 .. fs/2).
-    H : numpy.ndarray of complex, shape (n_outputs, n_inputs, n_freq)
-        ``H[i, j, k]`` is the response from input ``j`` to output ``i`` at
+    H : numpy.ndarray of complex, shape (n_freq, n_outputs, n_inputs)
+        ``H[k, i, j]`` is the response from input ``j`` to output ``i`` at
         ``freq_hz[k]`` in output units / input units.  NaN where the input
         cross-spectral matrix is singular (e.g. DC after detrending, nulls of
         a held PRBS).
-    coherence : numpy.ndarray, shape (n_outputs, n_inputs, n_freq)
+    coherence : numpy.ndarray, shape (n_freq, n_outputs, n_inputs)
         Ordinary coherence ``|S_yu|^2 / (S_uu S_yy)`` of each pair, in [0, 1].
-    multiple_coherence : numpy.ndarray, shape (n_outputs, n_freq)
+    multiple_coherence : numpy.ndarray, shape (n_freq, n_outputs)
         Fraction of each output's power explained linearly by all inputs
         together, in [0, 1]; equals ``coherence[:, 0]`` for one input.
     fs : float
@@ -117,16 +117,17 @@ def h1_estimate(
     HT = np.full(Puy_f.shape, np.nan, dtype=complex)
     if ok.any():
         HT[ok] = np.linalg.solve(Puu_f[ok], Puy_f[ok])  # (nf, m, l) = H^T
-    H = np.transpose(HT, (2, 1, 0))  # (l, m, nf)
-    syu = np.transpose(Puy_f, (2, 1, 0))  # (l, m, nf): E[Y_i conj(U_j)] conj-sym. |.| same
-    suu = np.real(np.diagonal(Puu_f, axis1=1, axis2=2)).T  # (m, nf)
+    H = np.transpose(HT, (0, 2, 1))  # (nf, l, m)
+    syu = np.transpose(Puy_f, (0, 2, 1))  # (nf, l, m): E[Y_i conj(U_j)] conj-sym. |.| same
+    suu = np.real(np.diagonal(Puu_f, axis1=1, axis2=2))  # (nf, m)
+    pyy = Pyy.T  # (nf, l)
     with np.errstate(divide="ignore", invalid="ignore"):
-        coh = np.abs(syu) ** 2 / (suu[None, :, :] * Pyy[:, None, :])
-        mult = np.real(np.sum(H * np.conj(syu), axis=1)) / Pyy
+        coh = np.abs(syu) ** 2 / (suu[:, None, :] * pyy[:, :, None])
+        mult = np.real(np.sum(H * np.conj(syu), axis=2)) / pyy
     coh = np.clip(np.nan_to_num(coh, nan=0.0, posinf=0.0), 0.0, 1.0)
     mult = np.clip(np.nan_to_num(mult, nan=0.0, posinf=0.0), 0.0, 1.0)
     if m == 1:
-        mult = coh[:, 0, :].copy()
+        mult = coh[:, :, 0].copy()
     return H1Estimate(
         freq_hz=frozen_array(f),
         H=frozen_array(H),
@@ -186,7 +187,7 @@ def frequency_response(system, freq_hz, *, dt_s: float | None = None) -> np.ndar
 
     Returns
     -------
-    numpy.ndarray of complex, shape (n_outputs, n_inputs, n_freq)
+    numpy.ndarray of complex, shape (n_freq, n_outputs, n_inputs)
     """
     A, B, C, D, dt = _system_matrices(system, dt_s)
     f = np.asarray(freq_hz, dtype=float)
@@ -200,4 +201,4 @@ def frequency_response(system, freq_hz, *, dt_s: float | None = None) -> np.ndar
     M = lam[:, None, None] * np.eye(n) - A  # (nf, n, n)
     X = np.linalg.solve(M, np.broadcast_to(B, (f.size,) + B.shape))  # (nf, n, m)
     G = C @ X + D  # (nf, l, m)
-    return np.transpose(G, (1, 2, 0))
+    return G

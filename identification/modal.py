@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import frozen_array, positive_float, square_matrix
+from .checks import frozen_array, positive_float, square_matrix
 
 __all__ = ["Modes", "modes_from_model", "continuous_poles"]
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal as _sig
 
-from ._checks import as_signal, frozen_array, nonneg_float, positive_float, positive_int, welch_segment_length
+from .checks import as_signal, frozen_array, nonneg_float, positive_float, positive_int, welch_segment_length
 
 __all__ = ["prbs", "prbs_hold_samples", "paper_excitation", "Excitation", "signal_spectrum", "Spectrum"]
 

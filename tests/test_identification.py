@@ -257,9 +257,9 @@ def test_frequency_response_matches_python_control():
     f = np.linspace(0.0, 1900.0, 57)
     Gc = ident.frequency_response((A, B, C, D), f)
     Gd = ident.frequency_response(sysd, f, dt_s=DT)
-    ref_c = control.ss(A, B, C, D)(2j * np.pi * f)
-    ref_d = control.ss(*sysd, DT)(np.exp(2j * np.pi * f * DT))
-    assert Gc.shape == (3, 2, 57)
+    ref_c = np.moveaxis(control.ss(A, B, C, D)(2j * np.pi * f), -1, 0)     # python-control: (ny, nu, F)
+    ref_d = np.moveaxis(control.ss(*sysd, DT)(np.exp(2j * np.pi * f * DT)), -1, 0)
+    assert Gc.shape == (57, 3, 2)                                            # (F, ny, nu)
     assert_allclose(Gc, ref_c, rtol=1e-9, atol=1e-12 * np.max(np.abs(ref_c)))
     assert_allclose(Gd, ref_d, rtol=1e-9, atol=1e-12 * np.max(np.abs(ref_d)))
     assert_allclose(ident.frequency_response(control.ss(*sysd, DT), f), Gd, rtol=1e-12)
@@ -275,12 +275,12 @@ def test_h1_estimate_fir_and_first_order():
     f = est.freq_hz
     z = np.exp(2j * np.pi * f * DT)
     true = np.stack([np.polyval(b[::-1], 1 / z), (1 - a1) / (1 - a1 / z)])  # (2, nf)
-    ok = (est.coherence[:, 0, :] > 0.99) & (f > 0)
+    ok = (est.coherence[:, :, 0].T > 0.99) & (f > 0)
     assert ok[0].mean() > 0.9 and ok[1].mean() > 0.9
-    err = np.abs(est.H[:, 0, :] - true) / np.abs(true)
+    err = np.abs(est.H[:, :, 0].T - true) / np.abs(true)
     assert np.max(err[ok]) < 0.02
-    assert est.H.shape == est.coherence.shape == (2, 1, f.size)
-    assert_allclose(est.multiple_coherence, est.coherence[:, 0, :], rtol=1e-12)
+    assert est.H.shape == est.coherence.shape == (f.size, 2, 1)
+    assert_allclose(est.multiple_coherence, est.coherence[:, :, 0], rtol=1e-12)
 
 
 def test_h1_estimate_mimo_with_noise():
@@ -298,9 +298,9 @@ def test_h1_estimate_mimo_with_noise():
     for i in range(2):
         for j in range(2):
             true = np.polyval(b[i][j][::-1], 1 / z)
-            assert_allclose(est.H[i, j, 1:], true[1:], rtol=0, atol=0.03)
-    assert np.all(est.multiple_coherence[:, 1:] > 0.95)
-    assert np.all(est.multiple_coherence[:, 1:] < 1.0)
+            assert_allclose(est.H[1:, i, j], true[1:], rtol=0, atol=0.03)
+    assert np.all(est.multiple_coherence[1:] > 0.95)
+    assert np.all(est.multiple_coherence[1:] < 1.0)
 
 
 # ----------------------------------------------------------------------------

@@ -51,7 +51,7 @@ def bandwidth(factory: StageFactory, controller, seed=0, duration_s=4.0, amplitu
     est_T = ident.h1_estimate(ref, cl.y_um, fs=FS, nperseg=2048)
     f = est_T.freq_hz
     band = (f >= 1.0) & (f <= 1000.0)
-    T = np.moveaxis(est_T.H[:, :, band], -1, 0)
+    T = est_T.H[band]
     S = np.eye(3)[None] - T
     sT = np.linalg.svd(T, compute_uv=False)[:, 0]
     sS = np.linalg.svd(S, compute_uv=False)[:, 0]

@@ -95,8 +95,8 @@ def run_identify(out_dir, config: IdentifyConfig | None = None, *, model=None, t
         rel = np.abs(H1 - H0) / np.maximum(np.abs(H0), 1e-12)
         extra["operating_points"] = {
             "piezo_V": list(ops),
-            "median_rel_difference_below_5hz": float(np.median(rel[:, :, f < 5])),
-            "median_rel_difference_20_to_150hz": float(np.median(rel[:, :, (f > 20) & (f < 150)])),
+            "median_rel_difference_below_5hz": float(np.median(rel[f < 5])),
+            "median_rel_difference_20_to_150hz": float(np.median(rel[(f > 20) & (f < 150)])),
             "fit_percent_second": results[1].fit_percent.round(2).tolist(),
         }
     write_json(out / A.IDENTIFY_JSON, identify_json(main, extra))

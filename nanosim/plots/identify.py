@@ -39,7 +39,7 @@ def figure_time_fit(result, col: int = 0, row: int = 0):
 
 
 def figure_bode_grid(models, labels, title, fmin=1.0, fmax=1000.0, styles=None):
-    """3x3 magnitude grid of discrete models (or (f, H) tuples), H of shape (ny, nu, F)."""
+    """3x3 magnitude grid of discrete models (or (f, H) tuples), H of shape (F, ny, nu)."""
     f = np.logspace(np.log10(fmin), np.log10(fmax), 800)
     fig, ax = subplots(3, 3, figsize=(11, 8), sharex=True)
     for m, lab, sty in zip(models, labels, styles or [{}] * len(models)):
@@ -47,7 +47,7 @@ def figure_bode_grid(models, labels, title, fmin=1.0, fmax=1000.0, styles=None):
         fr = f if not isinstance(m, tuple) else m[0]
         for i in range(3):
             for j in range(3):
-                ax[i, j].semilogx(fr, 20 * np.log10(np.abs(H[i, j]) + 1e-20), label=lab, **sty)
+                ax[i, j].semilogx(fr, 20 * np.log10(np.abs(H[:, i, j]) + 1e-20), label=lab, **sty)
     for i in range(3):
         ax[i, 0].set_ylabel(f"to {AXES[i]} (dB, sensor V/V)")
         for j in range(3):
@@ -84,13 +84,13 @@ def figure_parametric_vs_h1(result, col: int = 0, row: int = 0):
     Hm = ident.frequency_response(result.columns[col], f)
     band = (f >= 2) & (f <= 1000)
     fig, ax = subplots(2, 1, figsize=(8, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
-    ax[0].semilogx(f[band], 20 * np.log10(np.abs(h1.H[row, 0, band])), ":", label="H1 estimate (non-parametric)")
-    ax[0].semilogx(f[band], 20 * np.log10(np.abs(Hm[row, 0, band])), label="subspace model")
+    ax[0].semilogx(f[band], 20 * np.log10(np.abs(h1.H[band, row, 0])), ":", label="H1 estimate (non-parametric)")
+    ax[0].semilogx(f[band], 20 * np.log10(np.abs(Hm[band, row, 0])), label="subspace model")
     ax[0].set_ylabel("magnitude (dB, sensor V/V)")
     ax[0].set_title(f"Actuator {ACTS[col]} to {AXES[row]}: time-domain model vs frequency-domain estimate")
     ax[0].legend()
     ax[0].grid(True, which="both", alpha=0.3)
-    ax[1].semilogx(f[band], h1.coherence[row, 0, band])
+    ax[1].semilogx(f[band], h1.coherence[band, row, 0])
     ax[1].set_ylabel("coherence")
     ax[1].set_xlabel("frequency (Hz)")
     ax[1].set_ylim(0, 1.05)

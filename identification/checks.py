@@ -9,6 +9,9 @@ import numbers
 
 import numpy as np
 
+__all__ = ["as_signal", "as_matrix", "square_matrix", "state_space", "same_length", "positive_float",
+           "nonneg_float", "positive_int", "welch_segment_length", "not_degenerate", "frozen_array"]
+
 
 def as_signal(name: str, value, *, max_ndim: int = 2) -> np.ndarray:
     """Return ``value`` as a finite float array of shape ``(n_samples, n_channels)``.
