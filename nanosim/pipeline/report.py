@@ -33,6 +33,14 @@ def _get(d, *keys):
     return d
 
 
+B = P.BANDS
+
+
+def _band(key: str):
+    """(check, text) of the acceptance band ``key`` of :data:`nanosim.paper.BANDS`."""
+    return B[key].ok, B[key].text
+
+
 def _rows(run: Path):
     modes, ident, des, met = (_load(run, n) for n in (A.MODES_JSON, A.IDENTIFY_JSON, A.DESIGN_JSON, A.METRICS_JSON))
     rows = []
@@ -44,68 +52,74 @@ def _rows(run: Path):
     for f, axis in zip(P.PAPER_MODES_HZ, P.PAPER_MODE_AXES):
         near = min(found, key=lambda x: abs(x - f)) if found else None
         add("Stage model (Sec. 3)", f"mode near {f:.0f} Hz ({axis})", f, near, "Hz",
-            None if near is None else abs(near - f) <= 0.03 * f, "within 3 %")
+            None if near is None else abs(near - f) <= P.MODE_REL_TOL * f, f"within {100 * P.MODE_REL_TOL:g} %")
     g = modes.get("static_gain_um_per_V")
     if g is not None:
         ref = C.STATIC_GAIN_SCALE_UM_PER_V * C.JACOBIAN_J
         err = float(np.abs(np.array(g) - ref).max() / np.abs(ref).max())
         add("Stage model (Sec. 3)", "static gain vs 3.0 um/V x J (max error / max element)", 0.0, err, "-",
-            err <= 0.05, "<= 0.05")
+            err <= P.STATIC_GAIN_REL_TOL, f"<= {P.STATIC_GAIN_REL_TOL:g}")
     cv = modes.get("constraint_violation_ratio")
     add("Stage model (Sec. 3)", "loop-closure violation at full stroke", None, None if cv is None else 100 * cv, "%",
-        None if cv is None else cv < 0.005, "< 0.5 %")
+        None if cv is None else cv < P.CLOSURE_VIOLATION_MAX, f"< {100 * P.CLOSURE_VIOLATION_MAX:g} %")
     fit = ident.get("fit_percent")
     for i, ax in enumerate(C.AXES):
         for j, act in enumerate(C.ACTUATORS):
             v = _get(fit, i, j)
             add("Identification (Table 1)", f"fit {act} -> {ax}", float(P.PAPER_FIT_PERCENT[i, j]), v, "%",
-                None if v is None else v >= 90.0, ">= 90 %")
+                None if v is None else B["fit_percent"].ok(v), B["fit_percent"].text)
     add("Identification (Table 1)", "total model order", 39, ident.get("total_order"), "states", None, "")
     spec = [
-        ("gamma", PAPER["gamma"], des.get("gamma"), "-", lambda v: v <= 1.5, "<= 1.5"),
+        ("gamma", PAPER["gamma"], des.get("gamma"), "-", B["gamma"].ok, B["gamma"].text),
         ("controller order", PAPER["order"], des.get("controller_order"), "states",
          (lambda v: v == 19) if des.get("damping_loop") is None else None,
          "= 19" if des.get("damping_loop") is None else "(14-state model + damping loop)"),
-        ("peak sigma(S), nominal model", PAPER["S_nom"], des.get("S_peak_nominal"), "-", lambda v: v <= 1.5, "<= 1.5"),
-        ("peak sigma(S), full model", PAPER["S_full"], des.get("S_peak_full"), "-", lambda v: v <= 1.9, "<= 1.9"),
-        ("S bandwidth (design)", PAPER["bwS"], des.get("bandwidth_S_hz"), "Hz", lambda v: v >= 30, ">= 30 Hz"),
-        ("T bandwidth (design)", PAPER["bwT"], des.get("bandwidth_T_hz"), "Hz", lambda v: v >= 55, ">= 55 Hz"),
+        ("peak sigma(S), nominal model", PAPER["S_nom"], des.get("S_peak_nominal"), "-", *_band("S_peak_nominal")),
+        ("peak sigma(S), full model", PAPER["S_full"], des.get("S_peak_full"), "-", *_band("S_peak_full")),
+        ("S bandwidth (design)", PAPER["bwS"], des.get("bandwidth_S_hz"), "Hz", *_band("bandwidth_S_design_hz")),
+        ("T bandwidth (design)", PAPER["bwT"], des.get("bandwidth_T_hz"), "Hz", *_band("bandwidth_T_design_hz")),
     ]
     for label, p, v, u, ok, band in spec:
         add("H-infinity design (Sec. 4)", label, p, v, u, None if (v is None or ok is None) else ok(v), band)
     c1000 = next((c for c in met.get("contouring", []) if round(c.get("speed_um_s", 0)) == 1000), {})
     spec = [
-        ("S bandwidth on the stage", PAPER["bwS"], met.get("bandwidth_S_hz"), "Hz", lambda v: v >= 28, ">= 28 Hz"),
+        ("S bandwidth on the stage", PAPER["bwS"], met.get("bandwidth_S_hz"), "Hz", *_band("bandwidth_S_stage_hz")),
         ("T bandwidth on the stage", PAPER["bwT"], met.get("bandwidth_T_hz"), "Hz", None, ""),
         ("2 um step rise time", PAPER["rise"], _get(met, "step_2um", "rise_ms"), "ms", None, ""),
         ("2 um step peak time", PAPER["peak"], _get(met, "step_2um", "peak_ms"), "ms", None, ""),
-        ("2 um step settling (2 %)", PAPER["settle"], _get(met, "step_2um", "settling_ms"), "ms", lambda v: v <= 20, "<= 20 ms"),
-        ("2 um step overshoot", PAPER["over"], _get(met, "step_2um", "overshoot_percent"), "%", lambda v: v <= 15, "<= 15 %"),
+        ("2 um step settling (2 %)", PAPER["settle"], _get(met, "step_2um", "settling_ms"), "ms",
+         *_band("settling_ms")),
+        ("2 um step overshoot", PAPER["over"], _get(met, "step_2um", "overshoot_percent"), "%",
+         *_band("overshoot_percent")),
         ("resolution sigma, open loop", PAPER["sig_o"], _get(met, "resolution_sigma_nm", "open_loop"), "nm",
-         lambda v: 9.12 <= v <= 13.68, "11.4 +/- 20 %"),
+         *_band("sigma_open_nm")),
         ("resolution sigma, closed loop", PAPER["sig_c"], _get(met, "resolution_sigma_nm", "closed_loop"), "nm",
-         lambda v: v < 3.0, "< 3 nm"),
+         *_band("sigma_closed_nm")),
         ("95.45 % band, open loop", PAPER["s2_o"], _get(met, "resolution_2sigma_nm", "open_loop"), "nm", None, ""),
         ("95.45 % band, closed loop", PAPER["s2_c"], _get(met, "resolution_2sigma_nm", "closed_loop"), "nm", None, ""),
         ("99.73 % band, open loop", PAPER["s3_o"], _get(met, "resolution_3sigma_nm", "open_loop"), "nm", None, ""),
         ("99.73 % band, closed loop", PAPER["s3_c"], _get(met, "resolution_3sigma_nm", "closed_loop"), "nm", None, ""),
         ("output hysteresis, open loop", PAPER["hyst_o"], _get(met, "hysteresis", "open_loop_percent"), "%",
-         lambda v: 12 <= v <= 18, "15 +/- 3 %"),
+         *_band("hysteresis_open_percent")),
         ("hysteresis, closed loop (20 um)", PAPER["hyst_c"], _get(met, "hysteresis", "closed_loop_nm"), "nm",
-         lambda v: v < 50, "< 50 nm (0.25 %)"),
-        ("creep drift over 10 s, open loop", None, _get(met, "creep", "open_loop_drift_nm"), "nm", lambda v: v > 50, "> 50 nm"),
-        ("creep drift over 10 s, closed loop", 0.0, _get(met, "creep", "closed_loop_drift_nm"), "nm", lambda v: v < 5, "< 5 nm"),
-        ("contour error at 1000 um/s, mean", PAPER["contour_mean"], c1000.get("mean_error_nm"), "nm", lambda v: v < 100, "< 100 nm"),
+         *_band("hysteresis_closed_nm")),
+        ("creep drift over 10 s, open loop", None, _get(met, "creep", "open_loop_drift_nm"), "nm",
+         *_band("creep_open_nm")),
+        ("creep drift over 10 s, closed loop", 0.0, _get(met, "creep", "closed_loop_drift_nm"), "nm",
+         *_band("creep_closed_nm")),
+        ("contour error at 1000 um/s, mean", PAPER["contour_mean"], c1000.get("mean_error_nm"), "nm",
+         *_band("contour_mean_nm")),
         ("contour error at 1000 um/s, max", PAPER["contour_max"], c1000.get("max_error_nm"), "nm", None, ""),
         ("axis tracking error at 1000 um/s", PAPER["axis_err"], c1000.get("axis_tracking_error_um"), "um", None, ""),
     ]
     for label, p, v, u, ok, band in spec:
-        add("Closed loop on the MuJoCo stage (Sec. 5)", label, p, v, u, None if (v is None or ok is None) else ok(v), band)
+        add("Closed loop on the MuJoCo stage (Sec. 5)", label, p, v, u,
+            None if (v is None or ok is None) else ok(v), band)
     for i, p in enumerate(_get(met, "small_steps", "plateau_means_nm") or []):
         t = 10.0 * i
         if i:
             add("Closed loop on the MuJoCo stage (Sec. 5)", f"10 nm staircase, plateau {i}", t, p, "nm",
-                abs(p - t) <= 3.0, "within 3 nm")
+                abs(p - t) <= P.SMALL_STEP_TOL_NM, f"within {P.SMALL_STEP_TOL_NM:g} nm")
     return rows
 
 
