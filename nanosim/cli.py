@@ -1,4 +1,4 @@
-"""``nanosim`` command line: modes, identify, design, characterize, pipeline, view.
+"""``nanosim`` command line: modes, identify, design, characterize, pipeline, report, view.
 
 argparse -> config dataclasses (:mod:`nanosim.pipeline.config`, the only home
 of defaults) -> pipeline steps. Every user error prints one line and exits 2.
@@ -8,7 +8,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -122,8 +124,10 @@ def _cmd_design(args) -> int:
     from nanosim.pipeline.run import step_design
     from nanosim.pipeline.runfolder import staged_run
 
+    from nanosim.pipeline.runfolder import verify_input_file
+
     cfg = _design_config(args)
-    model = Path(args.model).resolve()
+    model = verify_input_file(args.model, "--model").resolve()      # a sealed run's model must match it
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True) as stage:
         step_design(stage, cfg, model_npz=model, mjcf=args.mjcf)
@@ -140,7 +144,9 @@ def _cmd_characterize(args) -> int:
     known = experiments.load_builtin()
     if args.only is not None and args.only not in known:
         raise ValueError(f"--only: expected one of {', '.join(known)}, got {args.only!r}")
-    controller = Path(args.controller).resolve()
+    from nanosim.pipeline.runfolder import verify_input_file
+
+    controller = verify_input_file(args.controller, "--controller").resolve()   # a sealed run must match
     DiscreteController.from_npz(controller, expected_dt=C.CONTROL_PERIOD_S)   # validate before any work
     cfg = CharacterizeConfig(seed=args.seed, only=args.only, twin=args.twin)
     t0 = time.perf_counter()
@@ -164,6 +170,18 @@ def _cmd_pipeline(args) -> int:
     report = Path(args.out) / A.REPORT_HTML
     print(f"pipeline done in {time.perf_counter() - t0:.1f} s; {n_ok} of {n_band} checked quantities inside "
           f"their bands; report: {report}")
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from nanosim.pipeline.report import pass_count, write_report
+    from nanosim.pipeline.runfolder import sealed_run, staged_run
+
+    run = sealed_run(args.run)                  # refuse a folder whose files do not match its manifest
+    with staged_run(args.run, keep_existing=True, seed=run.seed) as stage:
+        write_report(stage)
+        n_ok, n_band = pass_count(stage)
+    print(f"{n_ok} of {n_band} checked quantities inside their bands; report: {Path(args.run) / A.REPORT_HTML}")
     return 0
 
 
@@ -225,6 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--mjcf", default=None, type=_file)
     _add_design_arguments(pl)
     pl.set_defaults(func=_cmd_pipeline)
+    r = sub.add_parser("report", help="verify a run folder against its manifest and rewrite its report")
+    r.add_argument("--run", required=True, metavar="DIR", help="run folder written by nanosim (with manifest.json)")
+    r.set_defaults(func=_cmd_report)
     from nanosim.viewer import add_view_arguments, run_view
     v = sub.add_parser("view", help="browser 3D view (viser)")
     add_view_arguments(v)
@@ -241,6 +262,10 @@ def main(argv=None) -> int:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print(f"{prog}: interrupted; the run folder was left as it was before this command", file=sys.stderr)
+        if threading.active_count() > 1:    # experiment threads may be inside MuJoCo: finalizing under them crashes
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(130)
         return 130
     except (ValueError, OSError) as exc:        # user errors, file-system errors included
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__

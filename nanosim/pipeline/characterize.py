@@ -5,7 +5,8 @@ import json
 import os
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor, as_completed
+import queue
+import threading
 from pathlib import Path
 
 from nanosim import constants as C
@@ -40,6 +41,48 @@ def make_factory(twin: bool, mjcf=None, config: StageConfig | None = None):
     lin = linearize(Stage(config=StageConfig.ideal(), model=base.model))
     home = base.table_um.copy()
     return lambda seed: TwinStage(lin, seed=seed, config=config, home_um=home), base
+
+
+def _run_in_threads(task, names, workers: int):
+    """Yield ``task(name)`` for every name as the results arrive, on ``workers`` daemon threads.
+
+    Daemon threads (not a ``ThreadPoolExecutor``, whose exit waits for every queued task) so that
+    Ctrl-C ends the command at once: the main thread stops waiting, the staging folder is
+    removed and the process exits without running the remaining experiments.
+    """
+    todo: queue.SimpleQueue = queue.SimpleQueue()
+    for n in names:
+        todo.put(n)
+    done: queue.SimpleQueue = queue.SimpleQueue()
+    stop = threading.Event()
+
+    def worker():
+        while not stop.is_set():
+            try:
+                n = todo.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                done.put((task(n), None))
+            except BaseException as exc:  # noqa: BLE001  (handed to the main thread)
+                done.put((None, exc))
+
+    threads = [threading.Thread(target=worker, name=f"characterize-{k}", daemon=True) for k in range(workers)]
+    for t in threads:
+        t.start()
+    try:
+        for _ in names:
+            while True:
+                try:
+                    result, exc = done.get(timeout=0.2)
+                    break
+                except queue.Empty:
+                    continue
+            if exc is not None:
+                raise exc
+            yield result
+    finally:
+        stop.set()
 
 
 def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None = None, *, mjcf=None,
@@ -84,17 +127,16 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
     running = list(order)
     if bar:
         bar.set_postfix_str("running " + ", ".join(running[:workers]))
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(task, n) for n in order]
-        for fut in as_completed(futures):
-            name, r, seconds = fut.result()
+    try:
+        for name, r, seconds in _run_in_threads(task, order, workers):
             results[name], timing[name] = r, seconds
             running.remove(name)
             if bar:
                 bar.set_postfix_str(("running " + ", ".join(running[:workers])) if running else "figures")
                 bar.update(1)
-    if bar:
-        bar.close()
+    finally:
+        if bar:
+            bar.close()
     for name in names:       # main thread: figures in registry order
         exp = experiments.get(name)
         metrics.update(exp.metrics(results[name]))

@@ -20,8 +20,8 @@ from pathlib import Path
 
 from nanosim.fileio import write_json
 
-__all__ = ["RunFolderError", "MANIFEST_JSON", "check_writable", "staged_run", "write_manifest", "verify_manifest",
-           "sha256_file"]
+__all__ = ["RunFolderError", "MANIFEST_JSON", "SealedRun", "check_writable", "staged_run", "write_manifest",
+           "verify_manifest", "sealed_run", "verify_input_file", "sha256_file"]
 
 MANIFEST_JSON = "manifest.json"
 
@@ -63,8 +63,12 @@ def sha256_file(path: Path) -> str:
     return h.hexdigest()
 
 
-def write_manifest(folder: Path, *, seed=None, command=None) -> Path:
-    """Write ``manifest.json`` last: sha256 of every other file, seed, version, command line."""
+def write_manifest(folder: Path, *, seed=None, command=None, history=()) -> Path:
+    """Write ``manifest.json`` last: sha256 of every other file, seed, version, command line.
+
+    ``history`` lists the earlier commands of a run that commands added to (``design``,
+    ``characterize`` and ``report`` on an existing run), oldest first.
+    """
     from nanosim import __version__
 
     files = {}
@@ -74,6 +78,7 @@ def write_manifest(folder: Path, *, seed=None, command=None) -> Path:
     return write_json(folder / MANIFEST_JSON, {
         "nanosim_version": __version__, "seed": seed,
         "command": command if command is not None else [Path(sys.argv[0]).name, *sys.argv[1:]],
+        "history": list(history),
         "files_sha256": files})
 
 
@@ -104,6 +109,109 @@ def verify_manifest(folder: str | os.PathLike, required: tuple[str, ...] = ()) -
         if sha256_file(p) != digest:
             raise RunFolderError(f"run folder {str(folder)!r}: {rel} changed after the run was sealed")
     return man
+
+
+@dataclass(frozen=True)
+class SealedRun:
+    """A run folder whose files match its manifest (see :func:`sealed_run`).
+
+    Attributes
+    ----------
+    path : Path
+        The run folder.
+    seed : int or None
+        Seed recorded by the command that sealed it.
+    nanosim_version : str
+        Version that wrote it.
+    command : tuple of str
+        Command line that sealed it; ``history`` the earlier ones, oldest first.
+    files : tuple of str
+        Files listed in the manifest (relative, POSIX separators).
+    """
+
+    path: Path
+    seed: int | None
+    nanosim_version: str
+    command: tuple
+    history: tuple
+    files: tuple
+
+
+def sealed_run(folder: str | os.PathLike, required: tuple[str, ...] = (), name: str = "--run") -> SealedRun:
+    """Open a run folder for reading, refusing it unless its manifest matches every file.
+
+    Readers (``nanosim report``, ``nanosim compare``, ...) call this before using a folder.
+
+    Parameters
+    ----------
+    folder : path
+        The run folder.
+    required : tuple of str
+        Files that must be part of the sealed run (e.g. ``("metrics.json",)``).
+    name : str
+        Argument name used in the error message.
+
+    Raises
+    ------
+    RunFolderError
+        Not a directory, no manifest, a listed file missing or changed, or a required file not listed.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        what = "an existing file" if folder.exists() else "nothing"
+        raise RunFolderError(f"{name}: expected a nanosim run folder, got {what} at {str(folder)!r}")
+    try:
+        man = verify_manifest(folder, required)
+    except RunFolderError as exc:
+        raise RunFolderError(f"{name}: {exc}") from None
+    return SealedRun(path=folder, seed=man.get("seed"), nanosim_version=str(man.get("nanosim_version")),
+                     command=tuple(man.get("command") or ()), history=tuple(man.get("history") or ()),
+                     files=tuple(man["files_sha256"]))
+
+
+def verify_input_file(path: str | os.PathLike, name: str) -> Path:
+    """Refuse an input file (``--controller``, ``--model``) that lies in a run folder it no longer matches.
+
+    A file whose folder has no manifest (written by the user, or by the API) is accepted as it is;
+    a file in a sealed run folder must be listed in the manifest with the same sha256.
+
+    Raises
+    ------
+    RunFolderError
+        The file's run folder does not match its manifest, or the file is not part of it.
+    """
+    path = Path(path)
+    folder = path.resolve().parent
+    if (folder / MANIFEST_JSON).is_file():
+        sealed_run(folder, required=(path.name,), name=name)
+    return path
+
+
+def _is_run_folder_or_empty(out: Path) -> bool:
+    return not out.is_dir() or (out / MANIFEST_JSON).is_file() or not any(out.iterdir())
+
+
+def _pid_of(p: Path) -> int | None:
+    try:
+        return int(p.name.rsplit("-", 1)[1])
+    except (IndexError, ValueError):
+        return None
+
+
+def _clean_stale(out: Path) -> None:
+    """Remove what a killed writer left beside ``out``; put back a previous run it had moved aside."""
+    for p in sorted(out.parent.glob(f".{out.name}.old-*")):
+        pid = _pid_of(p)
+        if pid is None or _alive(pid):
+            continue
+        if not out.exists():
+            os.replace(p, out)                     # killed between the two renames of the swap
+        else:
+            shutil.rmtree(p, ignore_errors=True)
+    for p in out.parent.glob(f".{out.name}.staging-*"):
+        pid = _pid_of(p)
+        if pid is not None and not _alive(pid):
+            shutil.rmtree(p, ignore_errors=True)
 
 
 @dataclass
@@ -152,14 +260,32 @@ def staged_run(out: str | os.PathLike, *, keep_existing: bool = False, seed=None
         Start from a copy of the existing ``out`` (commands that add to a run, e.g. ``design``).
     seed : int, optional
         Recorded in the manifest.
+    command : list of str, optional
+        Recorded in the manifest (default: ``sys.argv``).
+
+    Raises
+    ------
+    RunFolderError
+        ``out`` cannot be written; it holds files that are not a nanosim run (no manifest: it
+        would be replaced or sealed); with ``keep_existing``, its files no longer match its
+        manifest; or another process is writing it.
     """
     out = check_writable(out).resolve()
+    if not _is_run_folder_or_empty(out):
+        raise RunFolderError(f"--out: {str(out)!r} holds files but no {MANIFEST_JSON}, so it is not a nanosim run "
+                             "folder; choose a new or empty folder")
     out.parent.mkdir(parents=True, exist_ok=True)
     lock = _Lock(out.parent / f".{out.name}.lock")
     lock.acquire()
     stage = out.parent / f".{out.name}.staging-{os.getpid()}"
     old = out.parent / f".{out.name}.old-{os.getpid()}"
     try:
+        _clean_stale(out)
+        history = []
+        if keep_existing and (out / MANIFEST_JSON).is_file():
+            prev = sealed_run(out, name="--out")         # never seal over files changed since
+            history = [*prev.history, list(prev.command)]
+            seed = prev.seed if seed is None else seed
         if stage.exists():
             shutil.rmtree(stage)
         if keep_existing and out.is_dir():
@@ -167,7 +293,7 @@ def staged_run(out: str | os.PathLike, *, keep_existing: bool = False, seed=None
         else:
             stage.mkdir()
         yield stage
-        write_manifest(stage, seed=seed, command=command)
+        write_manifest(stage, seed=seed, command=command, history=history)
         if out.exists():
             os.replace(out, old)
         os.replace(stage, out)
