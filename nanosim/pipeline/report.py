@@ -36,91 +36,186 @@ def _get(d, *keys):
 B = P.BANDS
 
 
-def _band(key: str):
-    """(check, text) of the acceptance band ``key`` of :data:`nanosim.paper.BANDS`."""
-    return B[key].ok, B[key].text
+def _load_or_none(run: Path, name: str):
+    p = run / name
+    return json.loads(p.read_text()) if p.is_file() else None
+
+
+def _num(v) -> bool:
+    """A number (not a bool, not NaN): what a band can be checked on."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
+
+
+def _check(band_key: str):
+    """(check, text) of a band; a missing or non-numeric value is outside every band."""
+    return (lambda v: _num(v) and B[band_key].ok(v)), B[band_key].text
+
+
+_MEASURED = ((lambda v: _num(v)), "measured (no band)")
+S_STAGE, S_IDENT, S_DESIGN, S_LOOP = ("Stage model (Sec. 3)", "Identification (Table 1)", "H-infinity design (Sec. 4)",
+                                      "Closed loop on the MuJoCo stage (Sec. 5)")
 
 
 def _rows(run: Path):
-    modes, ident, des, met = (_load(run, n) for n in (A.MODES_JSON, A.IDENTIFY_JSON, A.DESIGN_JSON, A.METRICS_JSON))
+    """Rows (section, label, paper, simulation, unit, ok, band) of the paper-vs-simulation table.
+
+    The rows with a band (``ok`` not None) are the checks of ``compare_to_paper.py`` (same
+    quantities, same bands, a missing file or value counted as outside), so both count the same;
+    rows without a band are shown for comparison only.
+    """
+    modes, ident, des, met = (_load_or_none(run, n) for n in (A.MODES_JSON, A.IDENTIFY_JSON, A.DESIGN_JSON,
+                                                              A.METRICS_JSON))
     rows = []
 
-    def add(section, label, paper, sim, unit, ok=None, band=""):
+    def add(section, label, paper, sim, unit, check=None, band=""):
+        ok = None if check is None else bool(check(sim) if callable(check) else check)
         rows.append((section, label, paper, sim, unit, ok, band))
 
-    found = [m["freq_hz"] for m in modes.get("modes", [])]
-    for f, axis in zip(P.PAPER_MODES_HZ, P.PAPER_MODE_AXES):
-        near = min(found, key=lambda x: abs(x - f)) if found else None
-        add("Stage model (Sec. 3)", f"mode near {f:.0f} Hz ({axis})", f, near, "Hz",
-            None if near is None else abs(near - f) <= P.MODE_REL_TOL * f, f"within {100 * P.MODE_REL_TOL:g} %")
-    g = modes.get("static_gain_um_per_V")
-    if g is not None:
-        ref = C.STATIC_GAIN_SCALE_UM_PER_V * C.JACOBIAN_J
-        err = float(np.abs(np.array(g) - ref).max() / np.abs(ref).max())
-        add("Stage model (Sec. 3)", "static gain vs 3.0 um/V x J (max error / max element)", 0.0, err, "-",
-            err <= P.STATIC_GAIN_REL_TOL, f"<= {P.STATIC_GAIN_REL_TOL:g}")
-    cv = modes.get("constraint_violation_ratio")
-    add("Stage model (Sec. 3)", "loop-closure violation at full stroke", None, None if cv is None else 100 * cv, "%",
-        None if cv is None else cv < P.CLOSURE_VIOLATION_MAX, f"< {100 * P.CLOSURE_VIOLATION_MAX:g} %")
-    fit = ident.get("fit_percent")
-    for i, ax in enumerate(C.AXES):
-        for j, act in enumerate(C.ACTUATORS):
-            v = _get(fit, i, j)
-            add("Identification (Table 1)", f"fit {act} -> {ax}", float(P.PAPER_FIT_PERCENT[i, j]), v, "%",
-                None if v is None else B["fit_percent"].ok(v), B["fit_percent"].text)
-    add("Identification (Table 1)", "total model order", 39, ident.get("total_order"), "states", None, "")
-    spec = [
-        ("gamma", PAPER["gamma"], des.get("gamma"), "-", B["gamma"].ok, B["gamma"].text),
-        ("controller order", PAPER["order"], des.get("controller_order"), "states",
-         (lambda v: v == 19) if des.get("damping_loop") is None else None,
-         "= 19" if des.get("damping_loop") is None else "(14-state model + damping loop)"),
-        ("peak sigma(S), nominal model", PAPER["S_nom"], des.get("S_peak_nominal"), "-", *_band("S_peak_nominal")),
-        ("peak sigma(S), full model", PAPER["S_full"], des.get("S_peak_full"), "-", *_band("S_peak_full")),
-        ("S bandwidth (design)", PAPER["bwS"], des.get("bandwidth_S_hz"), "Hz", *_band("bandwidth_S_design_hz")),
-        ("T bandwidth (design)", PAPER["bwT"], des.get("bandwidth_T_hz"), "Hz", *_band("bandwidth_T_design_hz")),
-    ]
-    for label, p, v, u, ok, band in spec:
-        add("H-infinity design (Sec. 4)", label, p, v, u, None if (v is None or ok is None) else ok(v), band)
+    def missing(section, name):
+        add(section, f"{name} of the run", None, None, "", lambda v: False, "present")
+
+    if modes is None:
+        missing(S_STAGE, A.MODES_JSON)
+    else:
+        below = [m for m in modes.get("modes", []) if m.get("freq_hz", 0) < 1000]
+        found = [m["freq_hz"] for m in below]
+        for f, axis in zip(P.PAPER_MODES_HZ, P.PAPER_MODE_AXES):
+            near = min(found, key=lambda x: abs(x - f)) if found else None
+            add(S_STAGE, f"mode near {f:.0f} Hz ({axis})", f, near, "Hz",
+                lambda v, f=f: _num(v) and abs(v - f) <= P.MODE_REL_TOL * f, f"within {100 * P.MODE_REL_TOL:g} %")
+        for m in below:
+            add(S_STAGE, f"damping ratio of the {m['freq_hz']:.0f} Hz mode", None, m.get("damping_ratio"), "-",
+                *_check("mode_damping"))
+        g = modes.get("static_gain_um_per_V")
+        if g is not None:
+            ref = C.STATIC_GAIN_SCALE_UM_PER_V * C.JACOBIAN_J
+            err = float(np.abs(np.array(g) - ref).max() / np.abs(ref).max())
+            add(S_STAGE, "static gain vs 3.0 um/V x J (max error / max element)", 0.0, err, "-",
+                lambda v: v <= P.STATIC_GAIN_REL_TOL, f"<= {P.STATIC_GAIN_REL_TOL:g}")
+        cv = modes.get("constraint_violation_ratio")
+        add(S_STAGE, "loop-closure violation at full stroke", None, 100 * cv if _num(cv) else None, "%",
+            _num(cv) and cv < P.CLOSURE_VIOLATION_MAX, f"< {100 * P.CLOSURE_VIOLATION_MAX:g} %")
+    if ident is None:
+        missing(S_IDENT, A.IDENTIFY_JSON)
+    else:
+        fit = ident.get("fit_percent")
+        for i, ax in enumerate(C.AXES):
+            for j, act in enumerate(C.ACTUATORS):
+                add(S_IDENT, f"fit {act} -> {ax}", float(P.PAPER_FIT_PERCENT[i, j]), _get(fit, i, j), "%",
+                    *_check("fit_percent"))
+        add(S_IDENT, "total model order", 39, ident.get("total_order"), "states")
+    if des is None:
+        missing(S_DESIGN, A.DESIGN_JSON)
+    else:
+        spec = [
+            ("gamma", PAPER["gamma"], des.get("gamma"), "-", *_check("gamma")),
+            ("controller order", PAPER["order"], des.get("controller_order"), "states", *_check("controller_order")),
+            ("peak sigma(S), nominal model", PAPER["S_nom"], des.get("S_peak_nominal"), "-", *_check("S_peak_nominal")),
+            ("peak sigma(S), full model", PAPER["S_full"], des.get("S_peak_full"), "-", *_check("S_peak_full")),
+            ("S bandwidth (design)", PAPER["bwS"], des.get("bandwidth_S_hz"), "Hz", *_check("bandwidth_S_design_hz")),
+            ("T bandwidth (design)", PAPER["bwT"], des.get("bandwidth_T_hz"), "Hz", *_check("bandwidth_T_design_hz")),
+        ]
+        for label, paper, v, unit, check, band in spec:
+            if label == "controller order" and des.get("damping_loop") is not None:
+                band += f"; here {des.get('reduced_order')}-state model + damping loop"
+            add(S_DESIGN, label, paper, v, unit, check, band)
+    if met is None:
+        missing(S_LOOP, A.METRICS_JSON)
+        return rows
     c1000 = next((c for c in met.get("contouring", []) if round(c.get("speed_um_s", 0)) == 1000), {})
+    none = (None, "")
     spec = [
-        ("S bandwidth on the stage", PAPER["bwS"], met.get("bandwidth_S_hz"), "Hz", *_band("bandwidth_S_stage_hz")),
-        ("T bandwidth on the stage", PAPER["bwT"], met.get("bandwidth_T_hz"), "Hz", None, ""),
-        ("2 um step rise time", PAPER["rise"], _get(met, "step_2um", "rise_ms"), "ms", None, ""),
-        ("2 um step peak time", PAPER["peak"], _get(met, "step_2um", "peak_ms"), "ms", None, ""),
+        ("S bandwidth on the stage", PAPER["bwS"], met.get("bandwidth_S_hz"), "Hz", *_check("bandwidth_S_stage_hz")),
+        ("T bandwidth on the stage", PAPER["bwT"], met.get("bandwidth_T_hz"), "Hz", *_MEASURED),
+        ("2 um step rise time", PAPER["rise"], _get(met, "step_2um", "rise_ms"), "ms", *_MEASURED),
+        ("2 um step peak time", PAPER["peak"], _get(met, "step_2um", "peak_ms"), "ms", *none),
         ("2 um step settling (2 %)", PAPER["settle"], _get(met, "step_2um", "settling_ms"), "ms",
-         *_band("settling_ms")),
+         *_check("settling_ms")),
         ("2 um step overshoot", PAPER["over"], _get(met, "step_2um", "overshoot_percent"), "%",
-         *_band("overshoot_percent")),
+         *_check("overshoot_percent")),
         ("resolution sigma, open loop", PAPER["sig_o"], _get(met, "resolution_sigma_nm", "open_loop"), "nm",
-         *_band("sigma_open_nm")),
+         *_check("sigma_open_nm")),
         ("resolution sigma, closed loop", PAPER["sig_c"], _get(met, "resolution_sigma_nm", "closed_loop"), "nm",
-         *_band("sigma_closed_nm")),
-        ("95.45 % band, open loop", PAPER["s2_o"], _get(met, "resolution_2sigma_nm", "open_loop"), "nm", None, ""),
-        ("95.45 % band, closed loop", PAPER["s2_c"], _get(met, "resolution_2sigma_nm", "closed_loop"), "nm", None, ""),
-        ("99.73 % band, open loop", PAPER["s3_o"], _get(met, "resolution_3sigma_nm", "open_loop"), "nm", None, ""),
-        ("99.73 % band, closed loop", PAPER["s3_c"], _get(met, "resolution_3sigma_nm", "closed_loop"), "nm", None, ""),
+         *_check("sigma_closed_nm")),
+        ("95.45 % band, open loop", PAPER["s2_o"], _get(met, "resolution_2sigma_nm", "open_loop"), "nm", *none),
+        ("95.45 % band, closed loop", PAPER["s2_c"], _get(met, "resolution_2sigma_nm", "closed_loop"), "nm", *none),
+        ("99.73 % band, open loop", PAPER["s3_o"], _get(met, "resolution_3sigma_nm", "open_loop"), "nm", *none),
+        ("99.73 % band, closed loop", PAPER["s3_c"], _get(met, "resolution_3sigma_nm", "closed_loop"), "nm", *none),
         ("output hysteresis, open loop", PAPER["hyst_o"], _get(met, "hysteresis", "open_loop_percent"), "%",
-         *_band("hysteresis_open_percent")),
+         *_check("hysteresis_open_percent")),
         ("hysteresis, closed loop (20 um)", PAPER["hyst_c"], _get(met, "hysteresis", "closed_loop_nm"), "nm",
-         *_band("hysteresis_closed_nm")),
+         *_check("hysteresis_closed_nm")),
         ("creep drift over 10 s, open loop", None, _get(met, "creep", "open_loop_drift_nm"), "nm",
-         *_band("creep_open_nm")),
+         *_check("creep_open_nm")),
         ("creep drift over 10 s, closed loop", 0.0, _get(met, "creep", "closed_loop_drift_nm"), "nm",
-         *_band("creep_closed_nm")),
+         *_check("creep_closed_nm")),
         ("contour error at 1000 um/s, mean", PAPER["contour_mean"], c1000.get("mean_error_nm"), "nm",
-         *_band("contour_mean_nm")),
-        ("contour error at 1000 um/s, max", PAPER["contour_max"], c1000.get("max_error_nm"), "nm", None, ""),
-        ("axis tracking error at 1000 um/s", PAPER["axis_err"], c1000.get("axis_tracking_error_um"), "um", None, ""),
+         *_check("contour_mean_nm")),
+        ("contour error at 1000 um/s, max", PAPER["contour_max"], c1000.get("max_error_nm"), "nm", *_MEASURED),
+        ("axis tracking error at 1000 um/s", PAPER["axis_err"], c1000.get("axis_tracking_error_um"), "um", *none),
     ]
-    for label, p, v, u, ok, band in spec:
-        add("Closed loop on the MuJoCo stage (Sec. 5)", label, p, v, u,
-            None if (v is None or ok is None) else ok(v), band)
-    for i, p in enumerate(_get(met, "small_steps", "plateau_means_nm") or []):
-        t = 10.0 * i
-        if i:
-            add("Closed loop on the MuJoCo stage (Sec. 5)", f"10 nm staircase, plateau {i}", t, p, "nm",
-                abs(p - t) <= P.SMALL_STEP_TOL_NM, f"within {P.SMALL_STEP_TOL_NM:g} nm")
+    for label, paper, v, unit, check, band in spec:
+        add(S_LOOP, label, paper, v, unit, check, band)
     return rows
+
+
+def _staircase_rows(run: Path):
+    """(target nm, plateau nm, within the band) of the 10 nm staircase (Fig. 17), if it ran."""
+    plateaus = _get(_load(run, A.METRICS_JSON), "small_steps", "plateau_means_nm") or []
+    return [(10.0 * i, p, _num(p) and abs(p - 10.0 * i) <= P.SMALL_STEP_TOL_NM)
+            for i, p in enumerate(plateaus) if i]
+
+
+# Thresholds of the design warnings (engineering limits, not paper figures).
+DISCRETIZATION_MAX_REL_ERROR = 0.01        # discrete vs continuous controller below 500 Hz
+CONTROLLER_POLE_MAX_RAD_S = 1e6            # a pole faster than this is a numerical artefact at 4 kHz sampling
+CLOSED_LOOP_MIN_DAMPING = 0.005            # least closed-loop damping ratio worth a warning
+
+
+def design_warnings(des: dict) -> list[str]:
+    """Warnings computed from ``design.json``'s own fields (empty if the design is clean).
+
+    Parameters
+    ----------
+    des : dict
+        Content of ``design.json``.
+
+    Returns
+    -------
+    list of str
+        One sentence per warning, with the measured value and the limit.
+    """
+    out = []
+    if des.get("discretization_within_1_percent") is False:
+        err = des.get("discretization_max_rel_error_below_500hz")
+        where = des.get("discretization_worst_freq_hz")
+        out.append("Controller discretization: the discrete controller differs from the continuous one by "
+                   + (f"{100 * err:.1f} %" if _num(err) else "more than 1 %")
+                   + (f" (at {where:.0f} Hz)" if _num(where) else "")
+                   + f" below 500 Hz (limit {100 * DISCRETIZATION_MAX_REL_ERROR:g} %).")
+    eo = des.get("Eo_max_dB_below_140Hz")
+    if _num(eo) and eo > P.PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ:
+        out.append(f"Model reduction: the relative reduction error reaches {eo:.1f} dB below 140 Hz "
+                   f"(paper: under {P.PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ:g} dB, Fig. 10).")
+    fast = des.get("controller_fastest_pole_rad_s")
+    if _num(fast) and fast > CONTROLLER_POLE_MAX_RAD_S:
+        out.append(f"Controller: a pole at {fast:.3g} rad/s ({fast / (2 * math.pi):.3g} Hz), faster than "
+                   f"{CONTROLLER_POLE_MAX_RAD_S:.0e} rad/s and far above the 4 kHz sampling: a numerically stiff "
+                   "state of the H-infinity synthesis.")
+    for key, model in (("nominal", "design (nominal) model"), ("twin", "linear twin")):
+        z, hz = des.get(f"closed_loop_min_damping_{key}"), des.get(f"closed_loop_min_damping_{key}_hz")
+        if _num(z) and z < CLOSED_LOOP_MIN_DAMPING:
+            out.append(f"Closed loop with the {model}: least damping ratio {z:.4f}"
+                       + (f" at {hz:.0f} Hz" if _num(hz) else "") + f" (below {CLOSED_LOOP_MIN_DAMPING:g}); "
+                       "the loop rings at that frequency.")
+    for key, model in (("nominal", "design model"), ("full", "full identified model"), ("twin", "linear twin"),
+                       ("discrete_full", "full model, discrete controller")):
+        if des.get(f"stable_{key}") is False:
+            out.append(f"Closed loop with the {model} is UNSTABLE.")
+    n_unst = des.get("full_model_unstable_poles")
+    if _num(n_unst) and n_unst > 0:
+        out.append(f"The identified full model has {n_unst:g} unstable pole(s).")
+    return out
 
 
 def _fmt(v):
@@ -213,69 +308,124 @@ def _architecture(des: dict) -> list[str]:
 
 
 def pass_count(run_dir) -> tuple[int, int]:
-    """(rows inside their band, rows with a band) of the run's paper-vs-simulation table."""
+    """(rows inside their band, rows with a band) of the run's paper-vs-simulation table.
+
+    The same rows and bands as ``compare_to_paper.py``, so both tools count the same.
+    """
     rows = _rows(Path(run_dir))
     return sum(1 for r in rows if r[5] is True), sum(1 for r in rows if r[5] is not None)
 
 
-def write_report(run_dir) -> tuple[Path, Path]:
-    """Write report.md and report.html into ``run_dir`` from its json files and figures."""
-    run = Path(run_dir)
+_EM = "\x00"     # marks emphasis (the paper title) inside a paragraph block
+
+
+def _blocks(run: Path):
+    """The report as blocks: ("h", level, text), ("p", text), ("ul", items), ("table", header, rows, marks)."""
     rows = _rows(run)
+    met, des = _load(run, A.METRICS_JSON), _load(run, A.DESIGN_JSON)
     timing = _load(run, A.PIPELINE_JSON).get("stage_seconds", {})
-    met = _load(run, A.METRICS_JSON)
-    n_ok = sum(1 for r in rows if r[5] is True)
-    n_band = sum(1 for r in rows if r[5] is not None)
-    paper_title = "Robust Control of a Parallel-Kinematic Nanopositioner"
-    rest = ("(J. Dyn. Sys., Meas., Control 130, 2008): MuJoCo stage -> identification -> H-infinity design -> "
-            f"closed-loop experiments. Plant for Sec. 5: {met.get('plant', 'n/a')}. "
-            f"{n_ok} of {n_band} checked quantities are inside their acceptance bands.")
-    md = ["# nanosim report", "", f"Simulated reproduction of *{paper_title}* {rest}", ""]
+    n_ok, n_band = pass_count(run)
+    warnings = design_warnings(des)
+    stairs = _staircase_rows(run)
+    out = [("h", 1, "nanosim report"),
+           ("p", f"Simulated reproduction of {_EM}Robust Control of a Parallel-Kinematic Nanopositioner{_EM} "
+                 "(J. Dyn. Sys., Meas., Control 130, 2008): MuJoCo stage -> identification -> H-infinity design -> "
+                 f"closed-loop experiments. Plant for Sec. 5: {met.get('plant', 'n/a')}. "
+                 f"{n_ok} of {n_band} checked quantities are inside their acceptance bands"
+                 f"{'; ' + str(len(warnings)) + ' design warning(s), see Warnings' if warnings else ''}.")]
     if timing:
-        md += ["Stage wall times (s): " + ", ".join(f"{k} {v}" for k, v in timing.items()), ""]
-    md += _architecture(_load(run, A.DESIGN_JSON))
-    md += ["## Paper vs simulation", "", "| section | quantity | paper | simulation | difference | unit | band | ok |",
-           "|---|---|---|---|---|---|---|---|"]
-    for sec, label, p, s, u, ok, band in rows:
-        mark = "" if ok is None else ("yes" if ok else "**NO**")
-        md.append(f"| {sec} | {label} | {_fmt(p)} | {_fmt(s)} | {_diff(p, s)} | {u} | {band} | {mark} |")
+        out.append(("p", "Stage wall times (s): " + ", ".join(f"{k} {v}" for k, v in timing.items())))
+    arch = _architecture(des)
+    if arch:
+        out += [("h", 2, "Controller"), ("p", arch[2])]
+    if des:
+        out += [("h", 2, "Warnings"),
+                ("ul", warnings) if warnings else
+                ("p", "None: discretization error, reduction error below 140 Hz, controller poles, closed-loop "
+                      "damping and stability are all within their limits (from design.json).")]
+    out += [("h", 2, "Paper vs simulation"),
+            ("p", f"{n_ok} of {n_band} rows with a band are inside it (the same rows and bands as "
+                  "compare_to_paper.py; a missing file or value counts as outside). Rows without a band are "
+                  "shown for comparison."),
+            ("table", ["section", "quantity", "paper", "simulation", "difference", "unit", "band", "ok"],
+             [[sec, label, _fmt(p), _fmt(v), _diff(p, v), u, band, "" if ok is None else ("yes" if ok else "NO")]
+              for sec, label, p, v, u, ok, band in rows], [r[5] for r in rows])]
+    if stairs:
+        out += [("h", 2, "10 nm staircase (Fig. 17)"),
+                ("p", f"{sum(ok for *_, ok in stairs)} of {len(stairs)} plateaus within "
+                      f"{P.SMALL_STEP_TOL_NM:g} nm of their target (not counted above)."),
+                ("table", ["plateau", "target (nm)", "mean (nm)", "difference", "ok"],
+                 [[str(k), _fmt(t), _fmt(v), _diff(t, v), "yes" if ok else "NO"]
+                  for k, (t, v, ok) in enumerate(stairs, 1)], [ok for *_, ok in stairs])]
     twin_rows = _twin_rows(run)
     if twin_rows:
-        md += ["", "## MuJoCo stage vs linear twin (same experiments, same code path)", "",
-               "Both plants have the same DAC, amplifier, piezo hysteresis and creep, gauge and ADC; "
-               "only the mechanics differ (MuJoCo vs the 12-state linear twin).", "",
-               "| quantity | MuJoCo | linear twin | difference |", "|---|---|---|---|"]
-        md += [f"| {lab} | {_fmt(a)} | {_fmt(b)} | {_diff(b, a)} |" for lab, a, b in twin_rows]
-    md += ["", "## Figures", ""]
-    figs = _figures(run)
-    for title, rel in figs:
-        md += [f"### {title}", "", f"![{title}]({rel})", ""]
-    md_path = write_text(run / A.REPORT_MD, "\n".join(md) + "\n")
+        out += [("h", 2, "MuJoCo stage vs linear twin (same experiments, same code path)"),
+                ("p", "Both plants have the same DAC, amplifier, piezo hysteresis and creep, gauge and ADC; "
+                      "only the mechanics differ (MuJoCo vs the 12-state linear twin)."),
+                ("table", ["quantity", "MuJoCo", "linear twin", "difference"],
+                 [[lab, _fmt(a), _fmt(b), _diff(b, a)] for lab, a, b in twin_rows], None)]
+    out.append(("h", 2, "Figures"))
+    out += [("fig", title, rel) for title, rel in _figures(run)]
+    return out
+
+
+def _markdown(blocks) -> str:
+    md = []
+    for b in blocks:
+        if b[0] == "h":
+            md += ["#" * b[1] + " " + b[2], ""]
+        elif b[0] == "p":
+            md += [b[1].replace(_EM, "*"), ""]
+        elif b[0] == "ul":
+            md += [f"- {item}" for item in b[1]] + [""]
+        elif b[0] == "table":
+            _, header, rows, marks = b
+            md += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+            for row in rows:
+                cells = [("**NO**" if c == "NO" and k == len(row) - 1 and marks else str(c)) for k, c in enumerate(row)]
+                md.append("| " + " | ".join(cells) + " |")
+            md.append("")
+        elif b[0] == "fig":
+            md += [f"### {b[1]}", "", f"![{b[1]}]({b[2]})", ""]
+    return "\n".join(md) + "\n"
+
+
+def _html(blocks) -> str:
+    e = html.escape
     h = ["<!doctype html><html><head><meta charset='utf-8'><title>nanosim report</title>",
          "<style>body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}"
          "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
-         "tr.no{background:#fde2e2}tr.yes{background:#e6f4e6}img{max-width:100%}</style></head><body>",
-         "<h1>nanosim report</h1>",
-         f"<p>Simulated reproduction of <em>{html.escape(paper_title)}</em> {html.escape(rest)}</p>"]
-    if timing:
-        h.append("<p>Stage wall times (s): " + html.escape(", ".join(f"{k} {v}" for k, v in timing.items())) + "</p>")
-    h.append("<h2>Paper vs simulation</h2><table><tr><th>section</th><th>quantity</th><th>paper</th>"
-             "<th>simulation</th><th>difference</th><th>unit</th><th>band</th><th>ok</th></tr>")
-    for sec, label, p, s, u, ok, band in rows:
-        cls = "" if ok is None else (" class='yes'" if ok else " class='no'")
-        cells = [sec, label, _fmt(p), _fmt(s), _diff(p, s), u, band, "" if ok is None else ("yes" if ok else "NO")]
-        h.append(f"<tr{cls}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
-    h.append("</table>")
-    if twin_rows:
-        h.append("<h2>MuJoCo stage vs linear twin (same experiments, same code path)</h2><table>"
-                 "<tr><th>quantity</th><th>MuJoCo</th><th>linear twin</th><th>difference</th></tr>")
-        for lab, a, b in twin_rows:
-            h.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in (lab, _fmt(a), _fmt(b), _diff(b, a)))
-                     + "</tr>")
-        h.append("</table>")
-    h.append("<h2>Figures</h2>")
-    for title, rel in figs:
-        h.append(f"<h3>{html.escape(title)}</h3><img src='{html.escape(rel)}' alt='{html.escape(title)}'>")
+         "tr.no{background:#fde2e2}tr.yes{background:#e6f4e6}img{max-width:100%}"
+         "ul.warn li{color:#8a3b00}</style></head><body>"]
+    for b in blocks:
+        if b[0] == "h":
+            h.append(f"<h{b[1]}>{e(b[2])}</h{b[1]}>")
+        elif b[0] == "p":
+            parts = e(b[1]).split(_EM)
+            h.append("<p>" + "".join(f"<em>{t}</em>" if k % 2 else t for k, t in enumerate(parts)) + "</p>")
+        elif b[0] == "ul":
+            h.append("<ul class='warn'>" + "".join(f"<li>{e(item)}</li>" for item in b[1]) + "</ul>")
+        elif b[0] == "table":
+            _, header, rows, marks = b
+            h.append("<table><tr>" + "".join(f"<th>{e(c)}</th>" for c in header) + "</tr>")
+            for k, row in enumerate(rows):
+                ok = marks[k] if marks else None
+                cls = "" if ok is None else (" class='yes'" if ok else " class='no'")
+                h.append(f"<tr{cls}>" + "".join(f"<td>{e(str(c))}</td>" for c in row) + "</tr>")
+            h.append("</table>")
+        elif b[0] == "fig":
+            h.append(f"<h3>{e(b[1])}</h3><img src='{e(b[2])}' alt='{e(b[1])}'>")
     h.append("</body></html>")
-    html_path = write_text(run / A.REPORT_HTML, "\n".join(h) + "\n")
-    return md_path, html_path
+    return "\n".join(h) + "\n"
+
+
+def write_report(run_dir) -> tuple[Path, Path]:
+    """Write report.md and report.html into ``run_dir`` from its json files and figures.
+
+    Sections: headline with the pass count, controller, design warnings (:func:`design_warnings`),
+    paper vs simulation (the rows of :func:`pass_count`), 10 nm staircase, MuJoCo vs linear twin,
+    and every figure of the run (:data:`nanosim.pipeline.artifacts.FIGURES` first, then any other PNG).
+    """
+    run = Path(run_dir)
+    blocks = _blocks(run)
+    return write_text(run / A.REPORT_MD, _markdown(blocks)), write_text(run / A.REPORT_HTML, _html(blocks))
