@@ -1,4 +1,4 @@
-"""Tests of nanosim.loop_analysis against published numbers.
+"""Tests of the loop analysis (nanosim.design.robustness and its modules) against published numbers.
 
 Conventions under test (see the module docstring): plant G is ny x nu, negative
 feedback e = r - y, 2-DOF controller u = K e + Ky y, feedback operator Kfb = K - Ky;
@@ -26,7 +26,7 @@ import control as ct
 import numpy as np
 import pytest
 
-from nanosim import loop_analysis as la
+from nanosim.design import robustness as la
 
 
 # ----------------------------------------------------------------------------------------

@@ -10,7 +10,11 @@ the artifacts and :mod:`nanosim.plots.design` draws the figures):
 * :mod:`~nanosim.design.damping` -- the inner active-damping loop (two degrees of freedom);
 * :mod:`~nanosim.design.loops` -- loop functions S, T, KS and their analysis;
 * :mod:`~nanosim.design.discretize` -- the discrete controller and its check;
-* :mod:`~nanosim.design.controller` -- the real-time discrete controller.
+* :mod:`~nanosim.design.controller` -- the real-time discrete controller;
+* :mod:`~nanosim.design.robustness` -- robustness of any controller on the loop as run
+  (facade of :mod:`~nanosim.design.loopresponse`, :mod:`~nanosim.design.margins`,
+  :mod:`~nanosim.design.mu`, :mod:`~nanosim.design.uncertainty`; argument checks in
+  :mod:`~nanosim.design.loopargs`).
 
 Plant ``G``: controller V -> sensor V; controller ``K``: error ``e = r - y``
 [sensor V] -> controller V, ``u = +K e``; frequencies in Hz; frequency
@@ -61,6 +65,36 @@ from nanosim.design.lti import (
     static_gain,
 )
 from nanosim.design.reduction import Reduction, multiplicative_uncertainty, reduce_model
+from nanosim.design.robustness import (
+    LOOP_DELAY_SAMPLES,
+    ROBUSTNESS_MAPS,
+    STAGE_UNCERTAINTY,
+    ControllerRobustness,
+    DiskMargin,
+    DiskMarginReport,
+    LeastDampedPole,
+    LoopPlant,
+    LoopResponse,
+    LoopStateSpace,
+    MuBounds,
+    RobustStabilityResult,
+    UncertaintySet,
+    analyze_controller,
+    closed_loop_poles,
+    controller_systems,
+    disk_gain_phase,
+    disk_margins,
+    frequency_response,
+    least_damped_pole,
+    loop_transfer_response,
+    loop_transfer_ss,
+    mu_lower_bound,
+    mu_upper_bound,
+    perturbed_plant,
+    robust_stability_mu,
+    robustness_summary,
+    stage_grid_hz,
+)
 from nanosim.design.weights import PAPER_WEIGHTS, WEIGHT_NAMES, Weights, WeightSpec, paper_weights
 
 __all__ = [
@@ -85,4 +119,11 @@ __all__ = [
     "discrete_closed_loop", "error_rel_to_peak", "dc_gain_discrete",
     # controller
     "ControllerConfig", "DiscreteController",
+    # robustness
+    "LOOP_DELAY_SAMPLES", "ROBUSTNESS_MAPS", "STAGE_UNCERTAINTY", "UncertaintySet", "LoopPlant",
+    "ControllerRobustness", "DiskMargin", "DiskMarginReport", "LeastDampedPole", "LoopResponse", "LoopStateSpace",
+    "MuBounds", "RobustStabilityResult", "analyze_controller", "controller_systems", "closed_loop_poles",
+    "disk_gain_phase", "disk_margins", "frequency_response", "least_damped_pole", "loop_transfer_response",
+    "loop_transfer_ss", "mu_lower_bound", "mu_upper_bound", "perturbed_plant", "robust_stability_mu",
+    "robustness_summary", "stage_grid_hz",
 ]

@@ -1,0 +1,427 @@
+"""Robustness of a controller on the stage loop as it is run: the public loop-analysis API.
+
+Facade of :mod:`~nanosim.design.loopresponse` (loop transfer matrices ``S_o, S_i, T_o,
+T_i, KS, SG`` at plant input and output, with the inner loop, in frequency and state
+space), :mod:`~nanosim.design.margins` (disk margins, pole damping),
+:mod:`~nanosim.design.mu` (mu bounds) and :mod:`~nanosim.design.uncertainty` (the
+stage's uncertainty set, :func:`robust_stability_mu`); conventions in
+:mod:`~nanosim.design.loopresponse`.  On top of them:
+
+* :func:`robustness_summary` -- JSON figures of one loop;
+* :class:`LoopPlant` -- a sampled plant as the loop runs it (plant and delay);
+* :func:`analyze_controller` -- any discrete controller (inputs ``[e; y]`` with
+  ``n_error``, or ``e`` only) on a :class:`LoopPlant`: :class:`ControllerRobustness`.
+
+The loop as run (:func:`nanosim.experiments.loop.run_closed_loop`) computes ``u_k``
+from the reading ``y_k`` that ``Stage.step(u_{k-1})`` returned, and ``Stage.step(u_k)``
+returns ``y_{k+1}``.  A model identified from the rows of a record (``u_k`` and the
+reading after ``step(u_k)``, :mod:`nanosim.experiments.sysid`) therefore has a direct
+feedthrough, and the loop as run is that model times ``z^-1``:
+:data:`LOOP_DELAY_SAMPLES` = 1 (pinned by ``tests/test_loop_analysis.py``).  The
+linear twin ``twin.npz`` is the standard zero-order-hold model ``y_k = C x_k + D u_k``;
+:meth:`LoopPlant.twin` moves it to the same convention, ``(A, B, C A, C B + D)``.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+import control as ct
+import numpy as np
+
+from nanosim import fileio
+from nanosim.design.controller import ControllerConfig, DiscreteController
+from nanosim.design.loopargs import check_delay, json_num
+from nanosim.design.loopresponse import (
+    LoopResponse,
+    LoopStateSpace,
+    PreparedLoop,
+    closed_loop_poles,
+    frequency_response,
+    loop_transfer_response,
+    loop_transfer_ss,
+)
+from nanosim.design.loops import MODE_BAND_HZ
+from nanosim.design.lti import analysis_grid_hz, refine_peak, sigma_max, single_threaded_blas
+from nanosim.design.margins import (
+    DiskMargin,
+    DiskMarginReport,
+    LeastDampedPole,
+    disk_gain_phase,
+    disk_margins,
+    least_damped_pole,
+)
+from nanosim.design.mu import MuBounds, mu_lower_bound, mu_upper_bound
+from nanosim.design.uncertainty import (
+    STAGE_UNCERTAINTY,
+    RobustStabilityResult,
+    UncertaintySet,
+    perturbed_plant,
+    robust_stability_mu,
+)
+
+__all__ = [
+    "LOOP_DELAY_SAMPLES", "ROBUSTNESS_MAPS", "STAGE_UNCERTAINTY", "UncertaintySet",
+    "DiskMargin", "DiskMarginReport", "LeastDampedPole", "LoopResponse", "LoopStateSpace", "MuBounds",
+    "RobustStabilityResult", "LoopPlant", "ControllerRobustness",
+    "closed_loop_poles", "disk_gain_phase", "disk_margins", "frequency_response", "least_damped_pole",
+    "loop_transfer_response", "loop_transfer_ss", "mu_lower_bound", "mu_upper_bound", "perturbed_plant",
+    "robust_stability_mu", "robustness_summary", "sigma_max", "controller_systems", "analyze_controller",
+    "stage_grid_hz",
+]
+
+# Samples between u_k computed from the reading y_k and its first effect on a reading,
+# counted from a model identified from (u_k, reading after step(u_k)) record rows.
+LOOP_DELAY_SAMPLES = 1
+# The six loop transfer matrices of robustness.json and its figure (LoopResponse names).
+ROBUSTNESS_MAPS = ("S_o", "S_i", "T_o", "T_i", "KS", "SG")
+_SUMMARY_MAPS = (("So", "S_o"), ("To", "T_o"), ("Si", "S_i"), ("Ti", "T_i"), ("KS", "KS"), ("KS_fb", "KS_fb"),
+                 ("SG", "SG"), ("T_ry", "T_ry"))
+
+
+# =====================================================================================
+# JSON summary of one loop
+# =====================================================================================
+def _dm_dict(prefix: str, m: DiskMargin) -> dict:
+    return {f"{prefix}_alpha": json_num(m.alpha),
+            f"{prefix}_alpha_upper_bound": json_num(m.alpha_upper_bound),
+            f"{prefix}_gain_margin_low": json_num(m.gain_margin[0]),
+            f"{prefix}_gain_margin_high": json_num(m.gain_margin[1]),
+            f"{prefix}_gain_margin_low_db": json_num(m.gain_margin_db[0]),
+            f"{prefix}_gain_margin_high_db": json_num(m.gain_margin_db[1]),
+            f"{prefix}_phase_margin_deg": json_num(m.phase_margin_deg),
+            f"{prefix}_freq_hz": json_num(m.freq_hz)}
+
+
+def _poles_dict(poles: np.ndarray, T, f_band_hz) -> dict:
+    discrete = T is not None
+    out: dict = {}
+    if not poles.size:
+        stable, meas = True, (0.0 if discrete else -math.inf)
+    elif discrete:
+        meas = float(np.max(np.abs(poles)))
+        stable = meas < 1.0
+    else:
+        meas = float(np.max(poles.real))
+        stable = meas < 0.0
+    out["closed_loop_stable"] = stable
+    out["spectral_radius" if discrete else "max_pole_real_per_s"] = json_num(meas)
+    if poles.size:
+        try:
+            ld = least_damped_pole(poles, T, f_band_hz=f_band_hz)
+            out["least_damped_zeta"], out["least_damped_freq_hz"] = json_num(ld.zeta), json_num(ld.freq_hz)
+        except ValueError:
+            out["least_damped_zeta"] = out["least_damped_freq_hz"] = None
+    return out
+
+
+def _peaks_dict(loop: PreparedLoop, f: np.ndarray, r: LoopResponse) -> dict:
+    out = {}
+    for key, attr in _SUMMARY_MAPS:
+        pk, fpk = refine_peak(lambda fr, a=attr: sigma_max(getattr(loop.response(fr), a)), f, r.sigma_max(attr))
+        out[f"peak_{key}"], out[f"peak_{key}_freq_hz"] = json_num(pk), json_num(fpk)
+    return out
+
+
+def _margins_dict(rep: DiskMarginReport) -> dict:
+    w = rep.worst()
+    out = {"disk_margin_skew": rep.skew, "disk_margin_alpha": json_num(w.alpha),
+           "gain_margin_db": [json_num(w.gain_margin_db[0]), json_num(w.gain_margin_db[1])],
+           "phase_margin_deg": json_num(w.phase_margin_deg), "disk_margin_freq_hz": json_num(w.freq_hz),
+           "disk_margin_location": w.location}
+    out.update(_dm_dict("dm_input", rep.input))
+    out.update(_dm_dict("dm_output", rep.output))
+    out.update(_dm_dict("dm_input_output", rep.input_output))
+    for name, lat in (("dm_input_loop_at_a_time", rep.input_loop_at_a_time),
+                      ("dm_output_loop_at_a_time", rep.output_loop_at_a_time)):
+        out[f"{name}_alpha"] = [json_num(m.alpha) for m in lat]
+        out[f"{name}_gain_margin_db"] = [[json_num(m.gain_margin_db[0]), json_num(m.gain_margin_db[1])] for m in lat]
+        out[f"{name}_phase_margin_deg"] = [json_num(m.phase_margin_deg) for m in lat]
+        out[f"{name}_freq_hz"] = [json_num(m.freq_hz) for m in lat]
+    return out
+
+
+def _mu_dict(res: RobustStabilityResult) -> dict:
+    return {"mu_peak": json_num(res.mu_peak), "mu_peak_freq_hz": json_num(res.mu_peak_freq_hz),
+            "mu_lower_peak": json_num(res.mu_lower_peak), "mu_robustly_stable": res.robustly_stable,
+            "mu_nominal_stable": res.nominal_stable, "sampled_all_stable": res.sampled_all_stable,
+            "sampled_worst": json_num(res.sampled_worst),
+            "sampled_worst_parameters": res.sampled_worst_parameters, "n_parameter_samples": res.n_samples}
+
+
+def robustness_summary(G, K, freq_hz, Ky=None, *, delay_samples: int = 0, dt=None, skew: float = 0.0,
+                       f_band_hz=None, robust: dict | None = None) -> dict:
+    """JSON-serialisable robustness figures of one loop (units in the key names).
+
+    Keys
+    ----
+    ``closed_loop_stable``; ``max_pole_real_per_s`` (continuous) or
+    ``spectral_radius`` (discrete); ``least_damped_zeta``, ``least_damped_freq_hz``;
+    ``peak_<map>`` and ``peak_<map>_freq_hz`` for ``So, To, Si, Ti, KS, KS_fb, SG, T_ry``
+    (sigma_max peaks, refined); ``disk_margin_alpha``, ``gain_margin_db`` ([low, high]),
+    ``phase_margin_deg``, ``disk_margin_freq_hz``, ``disk_margin_location``: the worst
+    multiloop disk margin; ``dm_<input|output|input_output>_*`` for each multiloop
+    margin and ``dm_<input|output>_loop_at_a_time_*`` lists per channel;
+    ``disk_margin_skew``; with ``robust`` (keyword arguments of
+    :func:`robust_stability_mu`, ``G`` as ``G_nominal``): ``mu_peak``,
+    ``mu_peak_freq_hz``, ``mu_lower_peak``, ``mu_robustly_stable``,
+    ``sampled_all_stable``, ``sampled_worst``, ``sampled_worst_parameters``,
+    ``n_parameter_samples``.  Unbounded values (``gmax = inf``) are ``None``.
+
+    Parameters
+    ----------
+    G, K, freq_hz, Ky, delay_samples, dt, skew
+        As in :func:`disk_margins` (LTI systems or static gains).
+    f_band_hz : (float, float) or None
+        Band for the least-damped closed-loop pole [Hz].
+    robust : dict or None
+        Extra keyword arguments for :func:`robust_stability_mu` (None: skip mu).
+
+    Returns
+    -------
+    dict
+    """
+    loop = PreparedLoop(G, K, Ky, delay_samples, dt, allow_stack=False)
+    f = loop.check_freq(freq_hz, increasing=True)
+    if robust is not None and not isinstance(robust, dict):
+        raise TypeError(f"robust: expected a dict of robust_stability_mu keyword arguments or None, "
+                        f"got {type(robust).__name__}")
+    out = _poles_dict(closed_loop_poles(G, K, Ky, loop.d, loop.T), loop.T if loop.kind == "discrete" else None,
+                      f_band_hz)
+    out.update(_peaks_dict(loop, f, loop.response(f)))
+    out.update(_margins_dict(disk_margins(G, K, f, Ky, delay_samples=loop.d, dt=loop.T, skew=skew)))
+    if robust is not None:
+        out.update(_mu_dict(robust_stability_mu(G, K, Ky, loop.T, f, nominal_delay_samples=loop.d, **robust)))
+    return out
+
+
+# =====================================================================================
+# the stage loop as run
+# =====================================================================================
+def _discrete_ss(name, x) -> ct.StateSpace:
+    if not isinstance(x, ct.StateSpace) or not ct.isdtime(x, strict=True) or x.dt is True:
+        raise ValueError(f"{name}: expected a discrete control.StateSpace with a numeric dt [s], got "
+                         f"{type(x).__name__}" + (f" with dt={x.dt!r}" if isinstance(x, ct.StateSpace) else ""))
+    return x
+
+
+def _load_plant_npz(path, name):
+    z = fileio.load_npz(path, required=("Ad", "Bd", "Cd", "Dd", "dt"))
+    Gd = ct.ss(*(np.atleast_2d(np.asarray(z[k], float)) for k in ("Ad", "Bd", "Cd", "Dd")), float(z["dt"]))
+    Gc = None
+    if all(k in z for k in "ABCD"):
+        Gc = ct.ss(*(np.atleast_2d(np.asarray(z[k], float)) for k in "ABCD"))
+    return Gd, Gc
+
+
+@dataclass(frozen=True, eq=False)
+class LoopPlant:
+    """A sampled plant as the loop runs it: ``G`` followed by ``delay_samples`` samples.
+
+    Attributes
+    ----------
+    G : control.StateSpace
+        Discrete, controller V -> sensor V, in the convention of a record row: ``G``
+        maps ``u_k`` to the reading returned by ``Stage.step(u_k)`` (it may have a
+        direct feedthrough).
+    delay_samples : int
+        Samples between a reading and the command computed from it, as run
+        (:data:`LOOP_DELAY_SAMPLES`).
+    label : str
+    G_continuous : control.StateSpace or None
+        Continuous counterpart (only to place the analysis grid).
+    """
+
+    G: ct.StateSpace
+    delay_samples: int = LOOP_DELAY_SAMPLES
+    label: str = "plant"
+    G_continuous: ct.StateSpace | None = None
+
+    def __post_init__(self):
+        _discrete_ss("G", self.G)
+        object.__setattr__(self, "delay_samples", check_delay(self.delay_samples))
+
+    @property
+    def dt(self) -> float:
+        """Sample period [s]."""
+        return float(self.G.dt)
+
+    @classmethod
+    def identified(cls, model, delay_samples: int = LOOP_DELAY_SAMPLES, label: str = "identified model"):
+        """An identified model (``model.npz`` path or discrete StateSpace), already in the
+        record-row convention.
+        """
+        Gc = None
+        if isinstance(model, (str, os.PathLike)):
+            model, Gc = _load_plant_npz(model, "model")
+        return cls(_discrete_ss("model", model), delay_samples, label, Gc)
+
+    @classmethod
+    def twin(cls, twin, delay_samples: int = LOOP_DELAY_SAMPLES, label: str = "linear twin"):
+        """A zero-order-hold model ``y_k = C x_k + D u_k`` (``twin.npz`` path or discrete
+        StateSpace) moved to the record-row convention ``(A, B, C A, C B + D)``.
+        """
+        Gc = None
+        if isinstance(twin, (str, os.PathLike)):
+            twin, Gc = _load_plant_npz(twin, "twin")
+        t = _discrete_ss("twin", twin)
+        A, B, C, D = (np.asarray(m, float) for m in (t.A, t.B, t.C, t.D))
+        return cls(ct.ss(A, B, C @ A, C @ B + D, t.dt), delay_samples, label, Gc)
+
+
+def controller_systems(controller, n_error: int | None = None):
+    """``(K, Ky)`` discrete StateSpaces of a controller ``u = K e + Ky y`` (``Ky`` None
+    for an error-only controller).
+
+    Parameters
+    ----------
+    controller : path, ControllerConfig, DiscreteController or control.StateSpace
+        ``controller.npz`` (``Akd..Dkd, dt``, optional ``n_error``) or the same in memory;
+        a StateSpace must be discrete.
+    n_error : int or None
+        Error inputs of a StateSpace (default: all inputs are errors); taken from the
+        file/config otherwise.
+    """
+    if isinstance(controller, (str, os.PathLike)):
+        controller = DiscreteController.from_npz(controller)
+    if isinstance(controller, DiscreteController):
+        controller = controller.config
+    if isinstance(controller, ControllerConfig):
+        c = controller
+        sys2, ne = ct.ss(c.Akd, c.Bkd, c.Ckd, c.Dkd, c.dt), c.n_error
+    elif isinstance(controller, ct.StateSpace):
+        sys2 = _discrete_ss("controller", controller)
+        ne = ControllerConfig(sys2.A, sys2.B, sys2.C, sys2.D, sys2.dt, n_error).n_error
+    else:
+        raise TypeError(f"controller: expected a controller.npz path, ControllerConfig, DiscreteController or "
+                        f"discrete StateSpace, got {type(controller).__name__}")
+    A, B, C, D = (np.asarray(m, float) for m in (sys2.A, sys2.B, sys2.C, sys2.D))
+    K = ct.ss(A, B[:, :ne], C, D[:, :ne], sys2.dt)
+    Ky = None if B.shape[1] == ne else ct.ss(A, B[:, ne:], C, D[:, ne:], sys2.dt)
+    return K, Ky
+
+
+def _poles_as_ss(poles_s: np.ndarray) -> ct.StateSpace:
+    """A continuous system with the poles ``poles_s`` [rad/s] (for grid densification)."""
+    blocks = [np.array([[p.real, p.imag], [-p.imag, p.real]]) if p.imag > 0 else np.array([[p.real]])
+              for p in poles_s if p.imag >= 0 and np.isfinite(p)]
+    n = sum(len(b) for b in blocks)
+    A = np.zeros((n, n))
+    k = 0
+    for b in blocks:
+        A[k:k + len(b), k:k + len(b)] = b
+        k += len(b)
+    return ct.ss(A, np.zeros((n, 1)), np.zeros((1, n)), 0.0)
+
+
+def stage_grid_hz(plant: LoopPlant, K, Ky=None, f_min_hz: float = 0.1, n: int = 600) -> np.ndarray:
+    """Log grid up to the Nyquist frequency, densified near the lightly damped open- and
+    closed-loop poles (:func:`nanosim.design.lti.analysis_grid_hz`) [Hz].
+    """
+    T = plant.dt
+    pl = [np.linalg.eigvals(np.asarray(plant.G.A, float))]
+    try:
+        pl.append(closed_loop_poles(plant.G, K, Ky, plant.delay_samples))
+    except ValueError:
+        pass
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = [np.log(p[np.abs(p) > 0].astype(complex)) / T for p in pl]
+    return analysis_grid_hz([_poles_as_ss(x) for x in s], f_min_hz, 0.5 / T, n)
+
+
+@dataclass(frozen=True, eq=False)
+class ControllerRobustness:
+    """Robustness of one controller on one :class:`LoopPlant` (from :func:`analyze_controller`).
+
+    Attributes
+    ----------
+    label : str
+        The plant's label.
+    delay_samples : int
+    response : LoopResponse
+        Loop transfer matrices on ``response.freq_hz``.
+    margins : DiskMarginReport
+    robust : RobustStabilityResult or None
+    poles : ndarray, complex
+        Closed-loop poles (``z``).
+    summary : dict
+        :func:`robustness_summary`-style figures plus ``least_damped_*_50_1000hz``.
+    uncertainty : UncertaintySet or None
+    """
+
+    label: str
+    delay_samples: int
+    response: LoopResponse
+    margins: DiskMarginReport
+    robust: RobustStabilityResult | None
+    poles: np.ndarray
+    summary: dict = field(default_factory=dict)
+    uncertainty: UncertaintySet | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the summary, the loop's delay and the uncertainty set."""
+        out = {"plant": self.label, "loop_delay_samples": self.delay_samples}
+        out.update(self.summary)
+        if self.uncertainty is not None:
+            out["uncertainty_set"] = self.uncertainty.to_dict()
+        return out
+
+
+@single_threaded_blas
+def analyze_controller(controller, plant, *, n_error: int | None = None, uncertainty=STAGE_UNCERTAINTY,
+                       freq_hz=None, mu: bool = True, n_levels: int = 3, n_random: int = 24,
+                       seed: int = 0) -> ControllerRobustness:
+    """Loop transfer matrices, disk margins, pole damping and mu of a discrete controller
+    on the loop as it is run.
+
+    Parameters
+    ----------
+    controller : path, ControllerConfig, DiscreteController or discrete StateSpace
+        ``u = K e + Ky y`` with inputs ``[e; y]`` (``n_error`` error inputs) or ``e``
+        only (:func:`controller_systems`).
+    plant : LoopPlant or discrete control.StateSpace
+        A StateSpace is taken as an identified model (:meth:`LoopPlant.identified`).
+    n_error : int or None
+        For a StateSpace controller, see :func:`controller_systems`.
+    uncertainty : UncertaintySet
+        Set for :func:`robust_stability_mu` (its delays are added to the loop's).
+    freq_hz : array_like or None
+        Analysis grid [Hz] (default :func:`stage_grid_hz`).
+    mu : bool
+        Compute the mu analysis (the slow part).
+    n_levels, n_random, seed
+        Sampling of the uncertainty set (:func:`robust_stability_mu`).
+
+    Returns
+    -------
+    ControllerRobustness
+    """
+    if isinstance(plant, ct.StateSpace):
+        plant = LoopPlant.identified(plant)
+    if not isinstance(plant, LoopPlant):
+        raise TypeError(f"plant: expected a LoopPlant or a discrete control.StateSpace, got {type(plant).__name__}")
+    if not isinstance(uncertainty, UncertaintySet):
+        raise TypeError(f"uncertainty: expected an UncertaintySet, got {type(uncertainty).__name__}")
+    K, Ky = controller_systems(controller, n_error)
+    if not math.isclose(float(K.dt), plant.dt, rel_tol=1e-9):
+        raise ValueError(f"controller: sample time {K.dt} s differs from the plant's {plant.dt} s")
+    G, d = plant.G, plant.delay_samples
+    loop = PreparedLoop(G, K, Ky, d, None, allow_stack=False)
+    f = loop.check_freq(stage_grid_hz(plant, K, Ky) if freq_hz is None else freq_hz, increasing=True)
+    poles = closed_loop_poles(G, K, Ky, d)
+    summary = _poles_dict(poles, plant.dt, None)
+    band = _poles_dict(poles, plant.dt, MODE_BAND_HZ)
+    summary["least_damped_zeta_50_1000hz"] = band.get("least_damped_zeta")
+    summary["least_damped_freq_50_1000hz_hz"] = band.get("least_damped_freq_hz")
+    r = loop.response(f)
+    summary.update(_peaks_dict(loop, f, r))
+    rep = disk_margins(G, K, f, Ky, delay_samples=d)
+    summary.update(_margins_dict(rep))
+    res = None
+    if mu:
+        res = robust_stability_mu(G, K, Ky, None, f, n_levels=n_levels, n_random=n_random, seed=seed,
+                                  **uncertainty.mu_kwargs(d))
+        summary.update(_mu_dict(res))
+    return ControllerRobustness(label=plant.label, delay_samples=d, response=r, margins=rep, robust=res,
+                                poles=poles, summary=summary, uncertainty=uncertainty if mu else None)
