@@ -42,7 +42,14 @@ class LoopTrace:
 
 def run_closed_loop(stage, controller: DiscreteController, ref_um: np.ndarray, *, settle: bool = True,
                     settle_s: float = 0.6) -> LoopTrace:
-    """Run the loop on ``ref_um`` (N, 3); with ``settle`` first move to ref_um[0] from home."""
+    """Run the loop on ``ref_um`` (N, 3); with ``settle`` first move to ref_um[0] from home.
+
+    A stage that runs closed loops itself (a member of a batch,
+    :mod:`nanosim.experiments.batch_suite`) is handed the whole call.
+    """
+    batched = getattr(stage, "closed_loop", None)
+    if batched is not None:
+        return batched(controller, ref_um, settle=settle, settle_s=settle_s)
     ref_um = np.asarray(ref_um, float)
     y = stage.sensors.step(stage.table_um).reading_V if hasattr(stage, "sensors") else np.zeros(3)
     if settle:

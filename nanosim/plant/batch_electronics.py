@@ -1,0 +1,225 @@
+"""The bench electronics of B stages at once: DAC, amplifier, piezo hysteresis and creep, gauge, ADC.
+
+Each member has three channels; the state is held as ``3 B`` channels and
+every effect is one numpy operation over all of them, in the order and with
+the formulas of the single-stage chains
+(:class:`~nanosim.plant.electronics.ActuatorChain`,
+:class:`~nanosim.plant.electronics.SensorChain`,
+:class:`~nanosim.plant.piezo.PiezoModel`), from the same
+:class:`~nanosim.plant.electronics.ElectronicsConfig` and
+:class:`~nanosim.plant.piezo.PiezoConfig`. Member ``b`` therefore gives
+bit-for-bit the numbers of a single stage with seed ``seeds[b]``
+(``tests/test_batch.py`` holds that contract: a change to the single-stage
+chains that is not mirrored here fails it).
+
+Noise: each member's DAC and gauge noise is drawn by a single-stage chain
+built from that member's seed with every other effect off, so its output is
+exactly the noise term the single stage adds (same generator, same block
+draws, same low-pass filter); it is added where the single stage adds it.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Sequence
+
+import numpy as np
+
+from nanosim.plant.electronics import ActuatorChain, ElectronicsConfig, SensorChain
+from nanosim.plant.piezo import PiezoConfig
+
+__all__ = ["BatchElectronics", "BatchReading"]
+
+_NOISE_CHUNK = 4096          # noise samples drawn per member at a time
+
+
+class _NoiseTerms:
+    """Per-member additive noise terms, drawn in chunks from the members' own single-stage chains."""
+
+    def __init__(self, make_chain, extract, seeds):
+        self._make, self._extract, self._seeds = make_chain, extract, list(seeds)
+        self.reset()
+
+    def reset(self) -> None:
+        self._chains = [self._make(s) for s in self._seeds]
+        self._buf = np.empty((0, 3 * len(self._seeds)))
+        self._i = 0
+
+    def take1(self) -> np.ndarray:
+        """Next noise term of every channel, shape ``(3 B,)``."""
+        if self._i == len(self._buf):
+            zeros = np.zeros((_NOISE_CHUNK, 3))
+            self._buf = np.concatenate([self._extract(ch.run(zeros)) for ch in self._chains], axis=1)
+            self._i = 0
+        row = self._buf[self._i]
+        self._i += 1
+        return row
+
+
+class BatchReading:
+    """Gauge/ADC output of a batch: ``reading_V``, ``reading_um``, ``clipped``, each ``(B, 3)``."""
+
+    __slots__ = ("reading_V", "reading_um", "clipped")
+
+    def __init__(self, reading_V, reading_um, clipped):
+        self.reading_V, self.reading_um, self.clipped = reading_V, reading_um, clipped
+
+
+class BatchElectronics:
+    """Actuator and sensor chains of B stages (3 channels each), vectorized over the batch.
+
+    Parameters
+    ----------
+    electronics : ElectronicsConfig
+    piezo : PiezoConfig
+    seeds : sequence of int
+        Master seed of each member (DAC noise: child stream 0, gauge noise: child 1,
+        as in the single-stage chains).
+    """
+
+    def __init__(self, electronics: ElectronicsConfig, piezo: PiezoConfig, seeds: Sequence[int]):
+        self.electronics, self.piezo_config = electronics, piezo
+        self.seeds = list(seeds)
+        if not self.seeds:
+            raise ValueError("seeds: expected at least one seed (one per batch member), got none")
+        self.n = len(self.seeds)
+        e, p = electronics, piezo
+        nch = 3 * self.n
+        # DAC and amplifier (ActuatorChain._electronics)
+        self._quant = e.dac_quantization
+        self._lsb = e.dac_lsb_V
+        self._code_lo = -float(2 ** (e.dac_bits - 1))
+        self._code_hi = float(2 ** (e.dac_bits - 1) - 1)
+        self._center = e.dac_center_V
+        self._sat = e.saturation
+        self._lo, self._hi = e.command_range_V
+        self._gain = e.amplifier_gain
+        sigma = e.dac_noise_V if e.dac_noise else 0.0
+        margin = 20.0 * sigma
+        self._dac_clip_implied = (self._quant and self._center + self._code_lo * self._lsb + margin < self._lo
+                                  and self._hi < self._center + self._code_hi * self._lsb - margin)
+        # piezo (PrandtlIshlinskii, KelvinVoigtCreep)
+        self._hyst = p.hysteresis
+        if self._hyst:
+            w0, w = p.hysteresis_weights()
+            self._w0, self._w = float(w0), np.asarray(w, dtype=float).copy()
+            self._r = np.asarray(p.pi_thresholds_V, dtype=float).copy()
+            self._z0 = np.zeros((nch, self._r.size))
+            self._zw = np.empty_like(self._z0)
+        self._creep = p.creep
+        if self._creep:
+            c = np.asarray(p.creep_gains, dtype=float)
+            tau = np.asarray(p.creep_time_constants_s, dtype=float)
+            a = np.exp(-e.dt_s / tau)
+            self._a_col, self._b_col = a[:, None], (1.0 - a)[:, None]
+            self._scale = 1.0 / (1.0 + float(c.sum())) if p.normalize_creep_dc else 1.0
+            self._sc_col = np.array([self._scale * float(ck) for ck in c])[:, None]
+            self._x0 = np.zeros((c.size, nch))
+            self._terms = np.empty((c.size + 1, nch))
+        # gauge and ADC (SensorChain._convert)
+        self._clip = e.sensor_clip
+        self._range = e.sensor_range_um
+        self._um_per_V = e.sensor_um_per_V
+        self._adc = e.adc_quantization
+        if self._adc:
+            self._adc_lsb = e.adc_lsb_V
+            self._adc_lsb_um = self._adc_lsb * self._um_per_V
+            self._adc_lo = -float(2 ** (e.adc_bits - 1))
+            self._adc_hi = float(2 ** (e.adc_bits - 1) - 1)
+        quiet = dict(dac_quantization=False, saturation=False, sensor_clip=False, adc_quantization=False)
+        self._dac_noise = self._gauge_noise = None
+        if sigma > 0.0:
+            dac_cfg = replace(e, sensor_noise=False, **quiet)
+            self._dac_noise = _NoiseTerms(lambda s: ActuatorChain(dac_cfg, PiezoConfig.linear(), seed=s),
+                                          lambda smp: smp.u_dac_V, self.seeds)
+        if e.sensor_noise and e.sensor_noise_std_nm > 0:
+            gauge_cfg = replace(e, dac_noise=False, **quiet)
+            self._gauge_noise = _NoiseTerms(lambda s: SensorChain(gauge_cfg, seed=s), lambda smp: smp.reading_um,
+                                            self.seeds)
+        self.reset()
+
+    def reset(self) -> None:
+        """Virgin piezos, no creep history, every noise stream rewound to its seed."""
+        if self._hyst:
+            self._z = self._z0.copy()
+        if self._creep:
+            self._x = self._x0.copy()
+        for noise in (self._dac_noise, self._gauge_noise):
+            if noise is not None:
+                noise.reset()
+
+    @property
+    def hysteresis_state(self) -> np.ndarray | None:
+        """Copy of the play-operator outputs, ``(3 B, n_operators)`` (None without hysteresis)."""
+        return self._z.copy() if self._hyst else None
+
+    def actuate(self, u_V: np.ndarray):
+        """Controller volts ``(B, 3)`` -> ``(u_dac_V, v_piezo_V, v_free_V, saturated)``, each ``(B, 3)``.
+
+        The operations are those of ``ActuatorChain.step`` (in place where that changes
+        nothing); the creep sum ``s h + sum_k s c_k x_k`` is one reduction along the
+        stage axis, which numpy evaluates left to right like the single chain's loop.
+        """
+        shape = u_V.shape
+        u = u_V.reshape(-1)
+        maximum, minimum = np.maximum, np.minimum
+        if self._quant:
+            code = np.subtract(u, self._center)
+            np.divide(code, self._lsb, out=code)
+            np.rint(code, out=code)
+            code_c = maximum(code, self._code_lo)
+            minimum(code_c, self._code_hi, out=code_c)
+            u_dac = np.multiply(code_c, self._lsb)
+            np.add(self._center, u_dac, out=u_dac)
+        else:
+            code = code_c = None
+            u_dac = u.copy()
+        if self._dac_noise is not None:
+            np.add(u_dac, self._dac_noise.take1(), out=u_dac)
+        if self._sat:
+            u_cmd = maximum(u_dac, self._lo)
+            minimum(u_cmd, self._hi, out=u_cmd)
+            sat = u_cmd != u_dac
+            if code is not None and not self._dac_clip_implied:
+                sat |= code_c != code
+        else:
+            u_cmd = u_dac
+            sat = (code_c != code) if code is not None else np.zeros(u.shape, dtype=bool)
+        v = np.multiply(self._gain, u_cmd)
+        h = v
+        if self._hyst:
+            vc = v[:, None]
+            z = self._z
+            maximum(z, vc - self._r, out=z)
+            minimum(z, vc + self._r, out=z)
+            h = np.add.reduce(np.multiply(z, self._w, out=self._zw), axis=-1)
+            h += self._w0 * v                                   # w0 v + sum (commutative: same bits)
+        if self._creep:
+            terms = self._terms
+            np.multiply(self._scale, h, out=terms[0])
+            np.multiply(self._sc_col, self._x, out=terms[1:])
+            hc = np.add.reduce(terms, axis=0)
+            x = self._x
+            np.multiply(self._a_col, x, out=x)
+            x += self._b_col * h
+            h = hc
+        return u_dac.reshape(shape), v.reshape(shape), h.reshape(shape), sat.reshape(shape)
+
+    def read(self, displacement_um: np.ndarray) -> BatchReading:
+        """True probe displacements ``(B, 3)`` um -> gauge noise, clip, ADC (one sample per member)."""
+        shape = displacement_um.shape
+        d = displacement_um.reshape(-1)
+        if self._gauge_noise is not None:
+            d = d + self._gauge_noise.take1()
+        if self._clip:
+            dc = np.minimum(np.maximum(d, -self._range), self._range)
+            clipped = dc != d
+            d = dc
+        else:
+            clipped = np.zeros(d.shape, dtype=bool)
+        if self._adc:
+            code = np.rint(d / self._um_per_V / self._adc_lsb)
+            code_c = np.minimum(np.maximum(code, self._adc_lo), self._adc_hi)
+            clipped |= code_c != code
+            return BatchReading((code_c * self._adc_lsb).reshape(shape), (code_c * self._adc_lsb_um).reshape(shape),
+                                clipped.reshape(shape))
+        return BatchReading((d / self._um_per_V).reshape(shape), d.reshape(shape).copy(), clipped.reshape(shape))
