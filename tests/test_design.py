@@ -426,7 +426,10 @@ def test_run_design_artifacts(tmp_path):
     assert abs(yx[-1] - 1) < 0.01 and np.all(np.abs(ys[-1, 1:]) < 0.004)
     assert rise < 0.05
     pngs = sorted(p.name for p in out.glob("*.png"))
-    assert len(pngs) == 8 and all((out / p).stat().st_size > 10_000 for p in pngs)
+    from nanosim.pipeline import artifacts as A
+    assert pngs == sorted(a.name for a in A.FIGURES if a.step == "design")   # 8 paper figures + 2 robustness
+    assert all((out / p).stat().st_size > 10_000 for p in pngs)
+    assert (out / A.ROBUSTNESS_JSON).is_file()
     assert not list(out.glob(".*"))                     # no temp files left behind
 
 

@@ -480,3 +480,95 @@ def test_errors_name_the_argument():
         la.disk_margins(G, K, [10.0, 1.0])
     with pytest.raises(ValueError, match=r"input_gain_range: expected"):
         la.robust_stability_mu(*stage(), None, 250e-6, [1.0, 2.0], input_gain_range=(1.0, 0.5))
+
+
+# ----------------------------------------------------------------------------------------
+# the loop as run (nanosim.experiments.loop.run_closed_loop on a Stage): its delay
+# ----------------------------------------------------------------------------------------
+def _two_dof_controller(Gd):
+    """u = K e + Ky y: integral action on decoupled axes and a zero-DC derivative Ky."""
+    dt = Gd.dt
+    G0inv = np.linalg.inv(np.real(ct.dcgain(Gd)))
+    integ = ct.ss(ct.tf([2 * np.pi * 40.0 * dt, 0.0], [1.0, -1.0], dt))
+    der = ct.ss(ct.tf([0.05, -0.05], [1.0, 0.0], dt))
+    K = ct.append(integ, integ, integ) * ct.ss([], [], [], G0inv, dt)
+    Ky = ct.append(der, der, der) * ct.ss([], [], [], G0inv, dt)
+    K2 = ct.ss(scipy_block_diag(K.A, Ky.A), scipy_block_diag(K.B, Ky.B), np.hstack([K.C, Ky.C]),
+               np.hstack([K.D, Ky.D]), dt)
+    return K, Ky, K2
+
+
+def scipy_block_diag(*m):
+    import scipy.linalg
+    return scipy.linalg.block_diag(*m)
+
+
+def test_loop_as_run_is_the_record_row_plant_delayed_by_one_sample():
+    # run_closed_loop computes u_k from the reading y_k that stage.step(u_{k-1}) returned, and
+    # stage.step(u_k) returns y_{k+1}.  In the convention of a record row (u_k, reading after
+    # step(u_k)) -- the identified model's, LoopPlant.twin for a ZOH model -- the loop as run is
+    # that plant followed by exactly LOOP_DELAY_SAMPLES = 1 sample, to rounding error.
+    from types import SimpleNamespace
+
+    from nanosim.design.controller import DiscreteController
+    from nanosim.experiments.loop import run_closed_loop
+    from nanosim.plant.stage import StageConfig
+    from nanosim.plant.twin import TwinStage
+
+    Gd, _ = stage()
+    Gd = ct.ss(Gd.A, Gd.B, Gd.C, 0.02 * np.eye(3), Gd.dt)      # a feedthrough, like the twin's residualised modes
+    K, Ky, K2 = _two_dof_controller(Gd)
+    st = TwinStage(SimpleNamespace(sysd_V=Gd, dt_s=Gd.dt), config=StageConfig.ideal())
+    ctrl = DiscreteController.from_matrices(K2.A, K2.B, K2.C, K2.D, Gd.dt, n_error=3)
+    n = 200
+    r = np.zeros((n, 3))
+    r[10:] = [0.5, -0.3, 0.2]                                      # um
+    y = run_closed_loop(st, ctrl, r, settle=False).y_um
+    err = {}
+    for d in (0, 1, 2):
+        T = la.loop_transfer_ss(la.LoopPlant.twin(Gd).G, K, Ky, delay_samples=d).T_ry
+        yp = ct.forced_response(T, U=r.T).outputs.T
+        err[d] = np.abs(y - yp).max() / np.abs(y).max()
+    assert la.LOOP_DELAY_SAMPLES == 1
+    assert err[1] < 1e-9
+    assert err[0] > 1e-3 and err[2] > 1e-3
+
+
+def test_mujoco_reading_responds_to_the_command_of_its_own_row(ideal, twin):
+    # Stage.step (MuJoCo) has the timing of the twin's record-row model: the reading after
+    # step(u_0) already moves (a model fit to record rows has a feedthrough), and the impulse
+    # response matches LoopPlant.twin(...).G within the linearization error, not one sample later.
+    ideal.reset()
+    n = 80
+    u = np.zeros((n, 3))
+    u[0] = [0.05, -0.03, 0.04]
+    y0 = ideal.sensors.step(ideal.table_um).reading_V
+    dy = ideal.run(u).sensor_V - y0
+    ideal.reset()
+    yp = ct.forced_response(la.LoopPlant.twin(twin.sysd_V).G, U=u.T).outputs.T
+    same_row = np.abs(dy - yp).max() / np.abs(dy).max()
+    next_row = np.abs(dy[1:] - yp[:-1]).max() / np.abs(dy).max()
+    assert np.abs(dy[0]).max() > 1e-4                  # sensor V, after one period
+    assert same_row < 0.03 and next_row > 0.2
+
+
+def test_analyze_controller_on_the_loop_as_run():
+    Gd, _ = stage()
+    K, Ky, K2 = _two_dof_controller(Gd)
+    plant = la.LoopPlant.twin(Gd)
+    f = np.logspace(-1, np.log10(2000.0), 60)
+    res = la.analyze_controller(K2, plant, n_error=3, freq_hz=f, n_levels=2, n_random=0)
+    ref = la.robustness_summary(plant.G, K, f, Ky, delay_samples=1)
+    for key in ("peak_So", "peak_Si", "peak_To", "peak_Ti", "peak_KS", "peak_SG", "dm_input_alpha",
+                "dm_output_alpha", "least_damped_zeta", "spectral_radius"):
+        assert res.summary[key] == pytest.approx(ref[key], rel=1e-9), key
+    assert res.delay_samples == 1 and res.robust is not None
+    assert res.summary["mu_peak"] >= res.summary["mu_lower_peak"] * (1 - 1e-9)
+    back = json.loads(json.dumps(res.to_dict(), allow_nan=False))
+    assert back["uncertainty_set"]["delay_samples_range"] == [0, 1]
+    # the 2-DOF split and the error-only form agree on the feedback operator K - Ky
+    Kc, Kyc = la.controller_systems(K2, n_error=3)
+    np.testing.assert_allclose(la.frequency_response(Kc - Kyc, f), la.frequency_response(K - Ky, f), atol=1e-9)
+    assert la.controller_systems(K)[1] is None
+    with pytest.raises(ValueError, match="controller: sample time"):
+        la.analyze_controller(ct.ss(K2.A, K2.B, K2.C, K2.D, 1e-3), plant, n_error=3, freq_hz=f[f < 400])

@@ -225,8 +225,9 @@ def disk_margins(G, K, freq_hz, Ky=None, *, delay_samples: int = 0, dt=None, ske
         Mf = build(r)
         mb = mu_upper_bound(Mf, blocks, lower=True, peak_only=True)
         if can_refine:
+            top = float(np.max(mb.upper))
             pk, fpk = refine_mu_peak(lambda fr: mu_upper_bound(build(loop.response(fr)), blocks, lower=False,
-                                                               peak_only=True).upper, f, mb.upper)
+                                                               peak_only=True, floor=top).upper, f, mb.upper)
             lb_pk = float(mu_upper_bound(build(loop.response(np.array([fpk]))), blocks, lower=True).lower[0])
         else:
             i = int(np.argmax(mb.upper))

@@ -125,8 +125,11 @@ def _osborne(M, st: _Structure, sweeps: int = 30) -> np.ndarray:
     return x
 
 
-def _mu_ub_one(M, st: _Structure, x0=None):
-    """Upper bound at one frequency; returns ``(ub, x)`` with ``x = log d`` (last 0)."""
+def _mu_ub_one(M, st: _Structure, x0=None, stop_below=None):
+    """Upper bound at one frequency; returns ``(ub, x)`` with ``x = log d`` (last 0).
+
+    With ``stop_below``, returns as soon as a (valid) bound at or below it is found.
+    """
     if st.nb == 1:
         return float(np.linalg.norm(M, 2)), np.zeros(1)
 
@@ -155,6 +158,8 @@ def _mu_ub_one(M, st: _Structure, x0=None):
         res = scipy.optimize.minimize(f_and_g, y, args=(p,), jac=True, method="L-BFGS-B", bounds=bounds,
                                       options={"maxiter": 100, "ftol": 1e-12, "gtol": 1e-9})
         y = res.x
+        if stop_below is not None and true_ub(y) <= stop_below:
+            break
     return true_ub(y), np.append(y, 0.0)
 
 
@@ -241,7 +246,7 @@ def _scaled_sigma_max(Ms: np.ndarray, st: _Structure, X: np.ndarray) -> np.ndarr
     return np.linalg.svd(A, compute_uv=False)[:, 0]
 
 
-def mu_upper_bound(M, blocks, *, lower: bool = True, peak_only: bool = False) -> MuBounds:
+def mu_upper_bound(M, blocks, *, lower: bool = True, peak_only: bool = False, floor=None) -> MuBounds:
     """Structured singular value bounds of complex matrices (one per frequency).
 
     Upper bound: ``min over positive block-diagonal D of sigma_max(D_l M D_r^-1)``,
@@ -268,6 +273,9 @@ def mu_upper_bound(M, blocks, *, lower: bool = True, peak_only: bool = False) ->
         the Osborne bound (still a valid upper bound, at most the peak) and ``lower`` the
         spectral radius of ``M`` (a valid lower bound when every block is square, else
         0).  ``max(upper)`` is the same as without screening.
+    floor : float or None
+        With ``peak_only``: a value the peak is known to reach (e.g. from a coarser
+        grid); only frequencies whose bound may exceed it are optimised.
 
     Returns
     -------
@@ -288,11 +296,11 @@ def mu_upper_bound(M, blocks, *, lower: bool = True, peak_only: bool = False) ->
         if lower:
             square = all(r == c for r, c in bl)
             lb[:] = np.max(np.abs(np.linalg.eigvals(Ms)), axis=1) if square else 0.0
-        best = -math.inf
+        best = -math.inf if floor is None else float(floor)
         for k in np.argsort(-ub, kind="stable"):
             if ub[k] <= best:
                 break
-            u, x = _mu_ub_one(Ms[k], st, X[k])
+            u, x = _mu_ub_one(Ms[k], st, X[k], stop_below=best if math.isfinite(best) else None)
             if u < ub[k]:
                 ub[k], ds[k] = u, np.exp(x)
             best = max(best, ub[k])

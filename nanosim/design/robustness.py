@@ -119,7 +119,8 @@ def _poles_dict(poles: np.ndarray, T, f_band_hz) -> dict:
 def _peaks_dict(loop: PreparedLoop, f: np.ndarray, r: LoopResponse) -> dict:
     out = {}
     for key, attr in _SUMMARY_MAPS:
-        pk, fpk = refine_peak(lambda fr, a=attr: sigma_max(getattr(loop.response(fr), a)), f, r.sigma_max(attr))
+        pk, fpk = refine_peak(lambda fr, a=attr: sigma_max(getattr(loop.response(fr), a)), f, r.sigma_max(attr),
+                              n_peaks=3, n_fine=21, rounds=4)
         out[f"peak_{key}"], out[f"peak_{key}_freq_hz"] = json_num(pk), json_num(fpk)
     return out
 

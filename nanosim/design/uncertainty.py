@@ -30,7 +30,6 @@ from nanosim.design.loopresponse import (
     delay_factor,
     delay_ss,
     feedback_operator_ss,
-    response_stack,
     stability,
     to_state_space,
 )
@@ -38,7 +37,7 @@ from nanosim.design.lti import sigma_max
 from nanosim.design.margins import refine_mu_peak
 from nanosim.design.mu import mu_upper_bound
 
-__all__ = ["UncertaintySet", "STAGE_UNCERTAINTY", "RobustStabilityResult", "perturbed_plant",
+__all__ = ["UncertaintySet", "STAGE_UNCERTAINTY", "RobustStabilityResult", "ModalPlant", "perturbed_plant",
            "robust_stability_mu"]
 
 
@@ -129,37 +128,52 @@ def perturbed_plant(G, freq_scale: float = 1.0, damping_scale: float = 1.0, inpu
     control.StateSpace
         Same time base as ``G``; states ``[delay; modal]``.
     """
-    if not is_lti(G):
-        raise TypeError(f"G: expected a control.StateSpace or TransferFunction, got {describe(G)}")
     fs = check_scale("freq_scale", freq_scale)
     zs = check_scale("damping_scale", damping_scale)
     d = check_delay(delay_samples)
-    nu = G.ninputs
-    g = np.asarray(input_gain, dtype=float)
-    if g.ndim == 0:
-        g = np.full(nu, float(g))
-    if g.shape != (nu,) or not np.all(np.isfinite(g)):
-        raise ValueError(f"input_gain: expected a scalar or {nu} finite factors (one per input), "
-                         f"got {np.shape(input_gain)}")
-    kind, T = timebase({"G": G}, dt)
-    if d and T is None:
-        raise ValueError(f"dt: delay_samples={d} on a continuous plant needs the sample period dt [s]")
-    discrete = kind == "discrete"
-    dt_sys = T if discrete else 0
-    Gs = ct.ss(G)
-    A, B, C, D = (np.asarray(m, dtype=float) for m in (Gs.A, Gs.B, Gs.C, Gs.D))
-    if A.shape[0]:
-        lam, V = np.linalg.eig(A)
-        if np.linalg.cond(V) > 1e10:
-            raise ValueError("G: the state matrix is not (numerically) diagonalisable; "
-                             "expected a plant with distinct modes")
-        if discrete:
-            with np.errstate(divide="ignore"):
-                s = np.log(lam.astype(complex)) / T
-        else:
-            s = lam.astype(complex)
-        s_new = s.copy()
-        for k, sk in enumerate(s):
+    return ModalPlant(G, dt).state_space(fs, zs, input_gain, d, keep_dc_gain=keep_dc_gain, pade_order=pade_order)
+
+
+class ModalPlant:
+    """Modal form ``G = C V (p I - Lambda)^-1 V^-1 B + D`` of a diagonalisable plant, for
+    the perturbations of :func:`perturbed_plant` (one eigendecomposition for many members).
+
+    Parameters
+    ----------
+    G : control.StateSpace or TransferFunction
+    dt : float or None
+        Control period [s] for delays of a continuous plant.
+    """
+
+    def __init__(self, G, dt=None):
+        if not is_lti(G):
+            raise TypeError(f"G: expected a control.StateSpace or TransferFunction, got {describe(G)}")
+        self.kind, self.T = timebase({"G": G}, dt)
+        self.discrete = self.kind == "discrete"
+        self.dt_sys = self.T if self.discrete else 0
+        Gs = ct.ss(G)
+        self.A, self.B, self.C, self.D = (np.asarray(m, dtype=float) for m in (Gs.A, Gs.B, Gs.C, Gs.D))
+        self.nu = self.B.shape[1]
+        n = self.A.shape[0]
+        self.lam = np.zeros(0, complex)
+        if n:
+            lam, V = np.linalg.eig(self.A)
+            if np.linalg.cond(V) > 1e10:
+                raise ValueError("G: the state matrix is not (numerically) diagonalisable; "
+                                 "expected a plant with distinct modes")
+            self.lam, self.V = lam, V
+            self.VinvB = np.linalg.solve(V, self.B.astype(complex))
+            self.CV = self.C @ V
+            if self.discrete:
+                with np.errstate(divide="ignore"):
+                    self.s = np.log(lam.astype(complex)) / self.T
+            else:
+                self.s = lam.astype(complex)
+
+    def poles(self, fs: float, zs: float, keep_dc_gain: bool = True):
+        """Perturbed poles (``z`` or ``s``) and the residue factors that keep each mode's DC gain."""
+        s_new = self.s.copy()
+        for k, sk in enumerate(self.s):
             if not np.isfinite(sk) or sk == 0:
                 continue
             wn = abs(sk)
@@ -173,31 +187,59 @@ def perturbed_plant(G, freq_scale: float = 1.0, damping_scale: float = 1.0, inpu
                     s_new[k] = wn2 * (-zn + (r if sk.imag > 0 else -r))
             else:
                 s_new[k] = sk * fs
-        lam_new = np.exp(s_new * T) if discrete else s_new
-        lam_new = np.where(np.isfinite(s), lam_new, lam)
-        VinvB = np.linalg.solve(V, B.astype(complex))
+        lam_new = np.exp(s_new * self.T) if self.discrete else s_new
+        lam_new = np.where(np.isfinite(self.s), lam_new, self.lam)
+        fac = np.ones(lam_new.size, complex)
         if keep_dc_gain:
-            p0 = 1.0 if discrete else 0.0
+            p0 = 1.0 if self.discrete else 0.0
             with np.errstate(divide="ignore", invalid="ignore"):
-                fac = (p0 - lam_new) / (p0 - lam)
-            fac = np.where(np.isfinite(fac) & (np.abs(p0 - lam) > 1e-12), fac, 1.0)
-            VinvB = fac[:, None] * VinvB
-        An = V @ np.diag(lam_new) @ np.linalg.inv(V)
-        Bn = V @ VinvB
-        scale = max(1.0, np.abs(A).max(), np.abs(B).max())
-        if np.abs(An.imag).max() > 1e-6 * scale * max(1.0, np.abs(An.real).max()) or \
-                np.abs(Bn.imag).max() > 1e-6 * max(1.0, np.abs(Bn.real).max()):
-            raise ValueError("G: modal perturbation produced a complex realization (unpaired "
-                             "complex poles?)")
-        A, B = An.real, Bn.real
-    B = B * g[None, :]
-    D = D * g[None, :]
-    P = ct.ss(A, B, C, D, dt_sys)
-    Dl = delay_ss(nu, d, kind if kind else "continuous", T, pade_order, dt_sys)
-    if Dl is not None:
-        P = ct.series(Dl, P)
-        P = ct.ss(P.A, P.B, P.C, P.D, dt_sys)
-    return P
+                fac = (p0 - lam_new) / (p0 - self.lam)
+            fac = np.where(np.isfinite(fac) & (np.abs(p0 - self.lam) > 1e-12), fac, 1.0)
+        return lam_new, fac
+
+    def _gains(self, input_gain) -> np.ndarray:
+        g = np.asarray(input_gain, dtype=float)
+        if g.ndim == 0:
+            g = np.full(self.nu, float(g))
+        if g.shape != (self.nu,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"input_gain: expected a scalar or {self.nu} finite factors (one per input), "
+                             f"got {np.shape(input_gain)}")
+        return g
+
+    def state_space(self, fs: float, zs: float, input_gain=1.0, delay_samples: int = 0, *,
+                    keep_dc_gain: bool = True, pade_order: int = 3) -> ct.StateSpace:
+        """The member of :func:`perturbed_plant` (states ``[delay; modal]``)."""
+        g = self._gains(input_gain)
+        d = check_delay(delay_samples)
+        if d and self.T is None:
+            raise ValueError(f"dt: delay_samples={d} on a continuous plant needs the sample period dt [s]")
+        A, B = self.A, self.B
+        if self.lam.size:
+            lam_new, fac = self.poles(fs, zs, keep_dc_gain)
+            An = self.V @ np.diag(lam_new) @ np.linalg.inv(self.V)
+            Bn = self.V @ (fac[:, None] * self.VinvB)
+            scale = max(1.0, np.abs(A).max(), np.abs(B).max())
+            if np.abs(An.imag).max() > 1e-6 * scale * max(1.0, np.abs(An.real).max()) or \
+                    np.abs(Bn.imag).max() > 1e-6 * max(1.0, np.abs(Bn.real).max()):
+                raise ValueError("G: modal perturbation produced a complex realization (unpaired "
+                                 "complex poles?)")
+            A, B = An.real, Bn.real
+        P = ct.ss(A, B * g[None, :], self.C, self.D * g[None, :], self.dt_sys)
+        Dl = delay_ss(self.nu, d, self.kind if self.kind else "continuous", self.T, pade_order, self.dt_sys)
+        if Dl is not None:
+            P = ct.series(Dl, P)
+            P = ct.ss(P.A, P.B, P.C, P.D, self.dt_sys)
+        return P
+
+    def response(self, f: np.ndarray, fs: float = 1.0, zs: float = 1.0, *, keep_dc_gain: bool = True) -> np.ndarray:
+        """Frequency response (F, ny, nu) of the member with unit gains and no delay, on ``f`` [Hz]."""
+        p = np.exp(2j * np.pi * f * self.T) if self.discrete else 2j * np.pi * f
+        if not self.lam.size:
+            return np.broadcast_to(self.D.astype(complex), (f.size,) + self.D.shape).copy()
+        lam_new, fac = self.poles(fs, zs, keep_dc_gain)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            R = fac[None, :] / (p[:, None] - lam_new[None, :])                  # (F, n)
+        return np.einsum("in,fn,nj->fij", self.CV, R, self.VinvB) + self.D[None]
 
 
 @dataclass(frozen=True, eq=False)
@@ -351,9 +393,10 @@ def robust_stability_mu(G_nominal, K, Ky, dt, freq_hz, *, input_gain_range=(0.75
     center = np.full(n, c)
     radius = np.full(n, rad)
 
+    mp = ModalPlant(G_nominal, T)
+
     def pp(fs, zs, gains, dd):
-        return perturbed_plant(G_nominal, fs, zs, gains, dd, dt=T, keep_dc_gain=keep_dc_gain,
-                               pade_order=pade_order)
+        return mp.state_space(fs, zs, gains, dd, keep_dc_gain=keep_dc_gain, pade_order=pade_order)
 
     # ---- weight samples (modes + delay; gains cancel in E_O)
     rng = np.random.default_rng(seed)
@@ -364,15 +407,14 @@ def robust_stability_mu(G_nominal, K, Ky, dt, freq_hz, *, input_gain_range=(0.75
     rand = [(float(rng.uniform(flo, fhi)), float(math.exp(rng.uniform(math.log(zlo), math.log(zhi)))),
              int(rng.integers(dlo, dhi + 1)), rng.uniform(glo, ghi, n)) for _ in range(n_random)]
     samples += [(a, b, dd) for a, b, dd, _ in rand]
-    G0 = perturbed_plant(G_nominal, 1.0, 1.0, 1.0, 0, dt=T, keep_dc_gain=keep_dc_gain)
-    modal = [(pp(a, b, 1.0, 0), dd) for a, b, dd in samples]   # delays applied as exact factors
+    G0 = pp(1.0, 1.0, 1.0, 0)
 
     def weight(fr: np.ndarray) -> np.ndarray:
-        G0f = response_stack(G0, fr, "G_nominal") * delay_factor(fr, loop.d, T)[:, None, None]
+        G0f = mp.response(fr, keep_dc_gain=keep_dc_gain) * delay_factor(fr, loop.d, T)[:, None, None]
         G0T = np.swapaxes(G0f, 1, 2)
         w = np.zeros(fr.size)
-        for P, dd in modal:
-            Pf = response_stack(P, fr, "perturbed plant") * delay_factor(fr, dd, T)[:, None, None]
+        for a, b, dd in samples:      # modes and delay (exact factors); the gains cancel in E_O
+            Pf = mp.response(fr, a, b, keep_dc_gain=keep_dc_gain) * delay_factor(fr, dd, T)[:, None, None]
             E = np.swapaxes(np.linalg.solve(G0T, np.swapaxes(Pf - G0f, 1, 2)), 1, 2)   # (Pf - G0f) G0f^-1
             w = np.maximum(w, sigma_max(E))
         return w
@@ -395,8 +437,9 @@ def robust_stability_mu(G_nominal, K, Ky, dt, freq_hz, *, input_gain_range=(0.75
     Mf, wf = build(f)
     mb = mu_upper_bound(Mf, blocks, lower=True, peak_only=True)
     if refine:
-        pk, fpk = refine_mu_peak(lambda fr: mu_upper_bound(build(fr)[0], blocks, lower=False, peak_only=True).upper,
-                                 f, mb.upper)
+        top = float(np.max(mb.upper))
+        pk, fpk = refine_mu_peak(lambda fr: mu_upper_bound(build(fr)[0], blocks, lower=False, peak_only=True,
+                                                           floor=top).upper, f, mb.upper)
     else:
         i = int(np.argmax(mb.upper))
         pk, fpk = float(mb.upper[i]), float(f[i])

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 __all__ = ["Artifact", "FIGURES", "figure", "MODES_JSON", "MODES_DIR", "MODEL_NPZ", "model_at_npz", "IDENTIFY_JSON",
            "TWIN_NPZ", "CONTROLLER_NPZ", "REDUCED_MODEL_NPZ", "DESIGN_JSON", "DESIGN_MAT", "METRICS_JSON",
-           "PIPELINE_JSON", "REPORT_MD", "REPORT_HTML", "TWIN_DIR"]
+           "PIPELINE_JSON", "REPORT_MD", "REPORT_HTML", "TWIN_DIR", "ROBUSTNESS_JSON"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,7 @@ TWIN_NPZ = "twin.npz"
 CONTROLLER_NPZ = "controller.npz"
 REDUCED_MODEL_NPZ = "reduced_model.npz"
 DESIGN_JSON = "design.json"
+ROBUSTNESS_JSON = "robustness.json"
 DESIGN_MAT = "design.mat"
 METRICS_JSON = "metrics.json"
 PIPELINE_JSON = "pipeline.json"
@@ -76,6 +77,10 @@ FIGURES: tuple[Artifact, ...] = (
     Artifact("fig18_T_KS.png", "design", "Closed-loop design singular values, T and KS (Fig. 18 a-b)"),
     Artifact("fig21_closed_loop_bode.png", "design", "Closed-loop Bode grid (Figs. 13, 21)"),
     Artifact("fig22_controller_bode.png", "design", "Controller Bode grid (Fig. 22)"),
+    Artifact("fig23_robustness_sigma.png", "design",
+             "Robustness: singular values of S_o, S_i, T_o, T_i, KS, SG on the loop as run"),
+    Artifact("fig24_robustness_disk_margins.png", "design",
+             "Robustness: multiloop disk margins and mu of the uncertainty set per frequency"),
     Artifact("fig14_hysteresis.png", "characterize", "Hysteresis, open and closed loop (Fig. 14)"),
     Artifact("fig15_creep.png", "characterize", "Creep (Fig. 15)"),
     Artifact("fig16_resolution.png", "characterize", "Resolution and PSD (Fig. 16)"),

@@ -11,7 +11,10 @@ The only part of the design layer that writes files. Steps (paper = DOI
    (damped) reduced model, analysed with the full and twin plants;
 5. :func:`~nanosim.design.discretize.discretize_controller` -- the 4 kHz controller;
 6. ``controller.npz``, ``reduced_model.npz``, ``design.json``, ``design.mat`` and the
-   registered design figures (:data:`nanosim.pipeline.artifacts.FIGURES`).
+   registered design figures (:data:`nanosim.pipeline.artifacts.FIGURES`);
+7. :func:`write_robustness` -- ``robustness.json`` and its figures: the exported discrete
+   controller on the loop as it is run (:mod:`nanosim.design.robustness`), with the linear
+   twin and with the identified model.
 """
 from __future__ import annotations
 
@@ -43,6 +46,7 @@ from nanosim.design.lti import (
     single_threaded_blas,
 )
 from nanosim.design.reduction import multiplicative_uncertainty, reduce_model
+from nanosim.design.robustness import LOOP_DELAY_SAMPLES, STAGE_UNCERTAINTY, LoopPlant, analyze_controller
 from nanosim.design.weights import Weights
 from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
@@ -57,8 +61,19 @@ from nanosim.plots.design import (
     plot_uncertainty,
     plot_weights,
 )
+from nanosim.plots.robustness import plot_disk_margins, plot_loop_singular_values
 
-__all__ = ["run_design"]
+__all__ = ["run_design", "write_robustness"]
+
+_ROBUSTNESS_UNITS = {
+    "peak_<map>": "largest singular value, dimensionless for So, Si, To, Ti; controller V / sensor V for KS, "
+                  "KS_fb; sensor V / controller V for SG (sensor V = 5 um)",
+    "*_hz": "Hz", "*_deg": "degrees", "*_db": "dB",
+    "*alpha*": "disk margin (radius of the disk of simultaneous gain/phase factors), dimensionless",
+    "gain_margin_low/high": "gain factor", "spectral_radius, sampled_worst": "|z| of the closed-loop poles",
+    "mu_*": "structured singular value over the uncertainty set (robustly stable if mu_peak < 1)",
+    "least_damped_zeta": "damping ratio of the least damped closed-loop pole (z mapped by s = ln z / dt)",
+}
 
 
 class _Progress:
@@ -69,6 +84,49 @@ class _Progress:
     def __call__(self, msg: str):
         if self.enabled:
             print(f"[nanosim.design {time.perf_counter() - self.t0:7.2f} s] {msg}", file=sys.stderr, flush=True)
+
+
+def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNCERTAINTY, mu: bool = True) -> dict:
+    """``robustness.json`` and its figures for one discrete controller on the loop as run.
+
+    Parameters
+    ----------
+    out_dir : path
+        Folder (created) for ``robustness.json``, ``fig23_robustness_sigma.png`` and
+        ``fig24_robustness_disk_margins.png``.
+    controller : path, ControllerConfig, DiscreteController or discrete StateSpace
+        See :func:`nanosim.design.robustness.analyze_controller`.
+    plants : dict of str to LoopPlant
+        Key -> plant as the loop runs it (e.g. ``{"twin": LoopPlant.twin(...),
+        "identified": LoopPlant.identified(...)}``).
+    uncertainty : UncertaintySet
+    mu : bool
+        Include the mu analysis.
+
+    Returns
+    -------
+    dict
+        The content of ``robustness.json``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    analyses = {k: analyze_controller(controller, p, uncertainty=uncertainty, mu=mu) for k, p in plants.items()}
+    doc = {"controller": str(controller) if isinstance(controller, (str, os.PathLike)) else type(controller).__name__,
+           "loop_delay_samples": LOOP_DELAY_SAMPLES,
+           "loop": "u_k = K (r_k - y_k) + Ky y_k from the reading y_k; Stage.step(u_k) returns y_(k+1). Each plant is "
+                   "in the record-row convention (u_k -> reading after step(u_k)) followed by loop_delay_samples.",
+           "uncertainty_set": uncertainty.to_dict(), "units": _ROBUSTNESS_UNITS,
+           "plants": {k: a.to_dict() for k, a in analyses.items()}}
+    for key in ("disk_margin_alpha", "dm_input_alpha", "dm_output_alpha", "mu_peak", "peak_So", "peak_Si"):
+        vals = [a.summary.get(key) for a in analyses.values() if a.summary.get(key) is not None]
+        if vals:
+            doc[f"worst_{key}"] = min(vals) if "alpha" in key else max(vals)
+    fileio.write_json(out / A.ROBUSTNESS_JSON, doc)
+    labels = {k: a.label for k, a in analyses.items()}
+    by_label = {labels[k]: a for k, a in analyses.items()}
+    fileio.save_figure(plot_loop_singular_values(by_label), out / A.figure("fig23_robustness_sigma.png").name)
+    fileio.save_figure(plot_disk_margins(by_label), out / A.figure("fig24_robustness_disk_margins.png").name)
+    return doc
 
 
 @single_threaded_blas
@@ -237,6 +295,15 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
     except Exception:  # pragma: no cover
         pass
     fileio.write_json(out / A.DESIGN_JSON, summary)
+
+    say("robustness of the exported discrete controller on the loop as run")
+    plants = {}
+    if G_twin is not None:
+        twin_d = load_state_space_npz(twin)[1] if isinstance(twin, (str, os.PathLike)) else None
+        plants["twin"] = LoopPlant.twin(twin_d if twin_d is not None else ct.c2d(G_twin, dt, "zoh"))
+    # the identified discrete model is in the record-row convention; a ZOH discretization is not
+    plants["identified"] = LoopPlant.identified(Gd) if Gd is Gd_full else LoopPlant.twin(Gd, label="full model")
+    write_robustness(out, out / A.CONTROLLER_NPZ, plants)
 
     say("writing figures")
     figs = {

@@ -364,9 +364,35 @@ def _blocks(run: Path):
                       "only the mechanics differ (MuJoCo vs the 12-state linear twin)."),
                 ("table", ["quantity", "MuJoCo", "linear twin", "difference"],
                  [[lab, _fmt(a), _fmt(b), _diff(b, a)] for lab, a, b in twin_rows], None)]
+    out += _robustness_blocks(run)
     out.append(("h", 2, "Figures"))
     out += [("fig", title, rel) for title, rel in _figures(run)]
     return out
+
+
+def _robustness_blocks(run: Path) -> list:
+    """The "Robustness" section from ``robustness.json`` (empty without it)."""
+    rob = _load(run, A.ROBUSTNESS_JSON)
+    if not rob.get("plants"):
+        return []
+    keys = [("peak_So", "peak sigma_max(S_o)"), ("peak_Si", "peak sigma_max(S_i)"), ("peak_To", "peak sigma_max(T_o)"),
+            ("peak_KS", "peak sigma_max(KS) [V/V]"), ("peak_SG", "peak sigma_max(SG) [V/V]"),
+            ("dm_input_alpha", "multiloop disk margin, input"), ("dm_output_alpha", "multiloop disk margin, output"),
+            ("dm_input_output_alpha", "disk margin, input + output"),
+            ("dm_output_phase_margin_deg", "disk phase margin, output [deg]"),
+            ("least_damped_zeta", "least damped closed-loop pole, zeta"),
+            ("least_damped_freq_hz", "  its frequency [Hz]"),
+            ("mu_peak", "mu peak over the uncertainty set"), ("sampled_worst", "worst sampled spectral radius")]
+    plants = rob["plants"]
+    u = rob.get("uncertainty_set", {})
+    return [("h", 2, "Robustness"),
+            ("p", f"The exported discrete controller on the loop as run (computation delay "
+                  f"{rob.get('loop_delay_samples')} sample; robustness.json). Uncertainty set: piezo gain per channel "
+                  f"{u.get('input_gain_range_factor')}, modal frequencies x{u.get('freq_scale_range_factor')}, "
+                  f"modal damping x{u.get('damping_scale_range_factor')}, delay {u.get('delay_samples_range')} "
+                  "samples; robustly stable if the mu peak is below 1 and every sampled spectral radius below 1."),
+            ("table", ["quantity"] + [plants[k].get("plant", k) for k in plants],
+             [[lab] + [_fmt(plants[k].get(key)) for k in plants] for key, lab in keys], None)]
 
 
 def _markdown(blocks) -> str:
