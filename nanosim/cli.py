@@ -1,4 +1,4 @@
-"""``nanosim`` command line: modes, identify, design, characterize, pipeline, report, view.
+"""``nanosim`` command line: modes, identify, design, characterize, pipeline, report, montecarlo, sweep, view.
 
 argparse -> config dataclasses (:mod:`nanosim.pipeline.config`, the only home
 of defaults) -> pipeline steps. Every user error prints one line and exits 2.
@@ -185,6 +185,40 @@ def _cmd_report(args) -> int:
     return 0
 
 
+def _cmd_montecarlo(args) -> int:
+    from nanosim.design.controller import DiscreteController
+    from nanosim.pipeline.config import MonteCarloConfig
+    from nanosim.pipeline.mc_stats import load_spec
+    from nanosim.pipeline.montecarlo import run_montecarlo
+
+    DiscreteController.from_npz(args.controller, expected_dt=C.CONTROL_PERIOD_S)   # validate before any work
+    if args.spec:
+        load_spec(args.spec)
+    cfg = MonteCarloConfig(n=args.n, seed=args.seed, crosscheck=args.crosscheck, spec=args.spec,
+                           scheduler=args.scheduler, workers=args.workers, mjcf=args.mjcf)
+    s = run_montecarlo(args.controller, args.out, cfg, say=_say)
+    y = next(r for r in s["yield"] if r["metric"] == "all")
+    print(f"montecarlo done in {s['wall_seconds']:.1f} s: yield {y['pass']}/{y['n']} ({y['yield_percent']:.1f} %), "
+          f"MuJoCo cross-check {s['crosscheck_pass']}/{s['crosscheck_n']} within 5 %; "
+          f"report: {Path(args.out) / 'report.md'}")
+    return 0
+
+
+def _cmd_sweep(args) -> int:
+    from nanosim.pipeline.config import SweepConfig
+    from nanosim.pipeline.runfolder import staged_run
+    from nanosim.pipeline.sweep import parse_param, run_sweep
+
+    cfg = SweepConfig(params=tuple(parse_param(p) for p in args.param), seed=args.seed, design=_design_config(args),
+                      scheduler=args.scheduler, workers=args.workers, mjcf=args.mjcf)
+    t0 = time.perf_counter()
+    with staged_run(args.out, seed=args.seed) as stage:
+        doc = run_sweep(stage, cfg, say=_say)
+    print(f"sweep done in {time.perf_counter() - t0:.1f} s: {len(doc['points'])} points, {len(doc['pareto'])} on the "
+          f"Pareto front; report: {Path(args.out) / 'report.md'}")
+    return 0
+
+
 # --- parser --------------------------------------------------------------------------------
 def _add_design_arguments(parser) -> None:
     parser.add_argument("--weights", default=None, type=_file,
@@ -246,6 +280,29 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("report", help="verify a run folder against its manifest and rewrite its report")
     r.add_argument("--run", required=True, metavar="DIR", help="run folder written by nanosim (with manifest.json)")
     r.set_defaults(func=_cmd_report)
+    mc = sub.add_parser("montecarlo", help="one controller on a population of fabricated stages (tolerances)")
+    mc.add_argument("--n", type=_int_at_least(1), default=200, help="number of fabricated stages (default 200)")
+    mc.add_argument("--controller", required=True, type=_file, help="controller.npz from 'nanosim design'")
+    mc.add_argument("--out", required=True, help="run folder (a rerun resumes it)")
+    mc.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
+    mc.add_argument("--spec", default=None, type=_file, help="JSON spec (limits with units); default: paper bands")
+    mc.add_argument("--crosscheck", type=_int_at_least(0), default=10, help="samples rerun on MuJoCo (default 10)")
+    mc.add_argument("--scheduler", default=None, help="Dask scheduler tcp://HOST:8786, or 'local' for a LocalCluster "
+                                                      "(default: a local process pool)")
+    mc.add_argument("--workers", type=_int_at_least(1), default=None, help="local worker processes (default: CPUs)")
+    mc.add_argument("--mjcf", default=None, type=_file)
+    mc.set_defaults(func=_cmd_montecarlo)
+    sw = sub.add_parser("sweep", help="flexure design sweep: bandwidth vs travel vs resolution, Pareto front")
+    sw.add_argument("--param", action="append", required=True, metavar="NAME=start:stop:n",
+                    help="thickness.<family> (um), stiffness.<family> (factor), target_mass_g, piezo_gain; "
+                         "families fourbar1, fourbar2, swing, lever, crank_bend; repeat for a grid")
+    sw.add_argument("--out", required=True, help="run folder for artifacts")
+    sw.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
+    sw.add_argument("--scheduler", default=None, help="Dask scheduler tcp://HOST:8786, or 'local' (LocalCluster)")
+    sw.add_argument("--workers", type=_int_at_least(1), default=None, help="local worker processes (default: CPUs)")
+    sw.add_argument("--mjcf", default=None, type=_file)
+    _add_design_arguments(sw)
+    sw.set_defaults(func=_cmd_sweep)
     from nanosim.viewer import add_view_arguments, run_view
     v = sub.add_parser("view", help="browser 3D view (viser)")
     add_view_arguments(v)

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field, replace
 
 from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_REDUCED_ORDER
 
-__all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConfig",
-           "DEFAULT_REDUCED_ORDER", "DEFAULT_DAMPING_ZETA", "DEFAULT_DAMPING_LOWPASS_HZ"]
+__all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConfig", "MonteCarloConfig",
+           "SweepConfig", "DEFAULT_REDUCED_ORDER", "DEFAULT_DAMPING_ZETA", "DEFAULT_DAMPING_LOWPASS_HZ"]
 
 # 14 states: the Hankel singular values fall 27x after state 12, and states 13-14 (the
 # 1 s creep stage) move the full-model S bandwidth from 27.9 to 29.7 Hz (README, "Controller").
@@ -145,3 +145,82 @@ class PipelineConfig:
 
     def __post_init__(self):
         _check_seed(self.seed)
+
+
+def _check_count(name: str, v, lo: int, allow_none: bool = False) -> None:
+    if v is None and allow_none:
+        return
+    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+        raise ValueError(f"{name}: expected an integer >= {lo}, got {v!r}")
+
+
+@dataclass(frozen=True)
+class MonteCarloConfig:
+    """Settings of ``nanosim montecarlo`` (fabrication-tolerance Monte Carlo).
+
+    Attributes
+    ----------
+    n : int
+        Number of fabricated stages (samples 0 ... n-1 of ``seed``).
+    seed : int
+        Seed of the tolerance samples and of every experiment's noise (common to all samples).
+    crosscheck : int
+        Samples 0 ... crosscheck-1 are rerun on MuJoCo and compared (0: none).
+    spec : path or None
+        Spec JSON (limits with units); None = the paper's closed-loop bands.
+    scheduler : str or None
+        None: local process pool; ``"local"``: a Dask LocalCluster; ``tcp://HOST:8786``: a Dask cluster.
+    workers : int or None
+        Local worker processes (default: CPUs).
+    chunk : int or None
+        Samples per task (default: about two tasks per worker, at most 64).
+    experiments : tuple of str or None
+        Registered experiments to run (default: all).
+    mjcf : path or None
+        Stage MJCF (default: the bundled one).
+    """
+
+    n: int = 200
+    seed: int = 0
+    crosscheck: int = 10
+    spec: str | os.PathLike | None = None
+    scheduler: str | None = None
+    workers: int | None = None
+    chunk: int | None = None
+    experiments: tuple | None = None
+    mjcf: str | os.PathLike | None = None
+
+    def __post_init__(self):
+        _check_count("n", self.n, 1)
+        _check_seed(self.seed)
+        _check_count("crosscheck", self.crosscheck, 0)
+        _check_count("workers", self.workers, 1, allow_none=True)
+        _check_count("chunk", self.chunk, 1, allow_none=True)
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """Settings of ``nanosim sweep`` (flexure design sweep).
+
+    Attributes
+    ----------
+    params : tuple of (name, start, stop, count)
+        Swept parameters; the grid is their Cartesian product.
+    seed : int
+        Noise seed of the experiments.
+    design : DesignConfig
+        Controller redesigned at every point with these settings.
+    scheduler, workers, mjcf
+        As in :class:`MonteCarloConfig`.
+    """
+
+    params: tuple = ()
+    seed: int = 0
+    design: DesignConfig = field(default_factory=DesignConfig)
+    scheduler: str | None = None
+    workers: int | None = None
+    mjcf: str | os.PathLike | None = None
+
+    def __post_init__(self):
+        _check_seed(self.seed)
+        _check_count("workers", self.workers, 1, allow_none=True)

@@ -1,0 +1,367 @@
+"""``nanosim montecarlo``: one controller on a population of fabricated stages.
+
+Each sample is a stage cut with the tolerances of
+:mod:`nanosim.plant.tolerances` (sample ``i`` of seed ``S`` is the same
+whatever ``--n``). Per sample: the modes, the static gain, closed-loop
+stability and the disk margin of the loop with the sample's linear twin
+(piezo small-signal gain and creep included), and the Section 5 experiments
+(every registered experiment) on the sample's linear twin in the full
+electromechanics, batched (:mod:`nanosim.experiments.batch_suite`). A subset
+(``--crosscheck``, default 10) is rerun on MuJoCo and compared metric by
+metric. Samples run in chunks on a local process pool or a Dask cluster
+(:mod:`nanosim.pipeline.scaleout`).
+
+Run folder (incremental; see the README):
+
+* ``montecarlo.json`` -- the plan (seed, controller sha256, tolerance model, experiments); a rerun
+  with another plan into the same folder is refused;
+* ``tolerances.json``, ``spec.json``;
+* ``samples/sample_NNNNN.json`` -- written atomically as each chunk finishes, so a rerun skips
+  them and Ctrl-C loses nothing finished; ``crosscheck/sample_NNNNN.json`` likewise (MuJoCo);
+* ``summary.json`` (yield, worst cases, sensitivity, cross-check), the figures and ``report.md``;
+* ``manifest.json`` last.
+
+A staging folder (``runfolder.staged_run``) would throw away finished samples
+on Ctrl-C, so this command writes in place: it holds the folder's writer
+lock, removes a previous ``manifest.json`` before it changes anything, and
+seals the folder with a new manifest only when everything is written.
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from nanosim.fileio import save_figure, write_json, write_text
+from nanosim.pipeline import mc_stats
+from nanosim.pipeline.config import MonteCarloConfig
+from nanosim.pipeline.runfolder import RunFolderError, check_writable, sha256_file, write_manifest
+from nanosim.pipeline.scaleout import open_executor, run_tasks
+
+__all__ = ["run_montecarlo", "run_chunk", "sample_plants", "summarize", "report_markdown"]
+
+SAMPLES_DIR = "samples"
+CROSSCHECK_DIR = "crosscheck"
+PLAN_JSON = "montecarlo.json"
+SUMMARY_JSON = "summary.json"
+FIG_HIST = "fig_mc_histograms.png"
+FIG_SENS = "fig_mc_sensitivity.png"
+FIG_CROSS = "fig_mc_crosscheck.png"
+REPORT_MD = "report.md"
+SENSITIVITY_EXTRA = ("mode_1_hz", "xy_split_percent", "disk_margin_alpha")
+
+
+# ------------------------------------------------------------------------------ worker side
+def _controller_config(d: dict):
+    from nanosim.design.controller import ControllerConfig
+
+    return ControllerConfig(np.asarray(d["Akd"]), np.asarray(d["Bkd"]), np.asarray(d["Ckd"]), np.asarray(d["Dkd"]),
+                            float(d["dt"]), d.get("n_error"))
+
+
+def _loop_figures(twin_piezo, ctrl) -> dict:
+    """Closed-loop stability and the worst multiloop disk margin on the sample's twin (loop as run)."""
+    from nanosim.design.robustness import (LoopPlant, closed_loop_poles, controller_systems, disk_margins,
+                                           stage_grid_hz)
+
+    plant = LoopPlant.twin(twin_piezo.sysd_V)
+    K, Ky = controller_systems(ctrl)
+    poles = closed_loop_poles(plant.G, K, Ky, plant.delay_samples)
+    rho = float(np.max(np.abs(poles))) if poles.size else 0.0
+    out = {"closed_loop_stable": bool(rho < 1.0), "spectral_radius": rho}
+    f = stage_grid_hz(plant, K, Ky, n=300)
+    rep = disk_margins(plant.G, K, f, Ky, delay_samples=plant.delay_samples, refine=False)
+    w = rep.worst()
+    out.update({"disk_margin_alpha": float(w.alpha), "disk_margin_freq_hz": float(w.freq_hz),
+                "gain_margin_db": float(w.gain_margin_db[1]), "phase_margin_deg": float(w.phase_margin_deg),
+                "disk_margin_location": w.location})
+    return out
+
+
+def sample_plants(indices, seed: int, ctrl=None, mjcf=None, with_loop: bool = True):
+    """Models, member plants and plant-level records (modes, gain, loop figures) of samples ``indices``."""
+    from nanosim.experiments.batch_suite import MemberPlant
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.modes import modal_analysis
+    from nanosim.plant.stage import Stage, StageConfig
+    from nanosim.plant.tolerances import default_tolerances, sample_model
+
+    tm = default_tolerances(load_model(mjcf))
+    plants, records = [], []
+    for i in indices:
+        values = tm.sample(seed, i)
+        model = sample_model(values, tm, mjcf)
+        modes = modal_analysis(model)
+        f = [m.freq_hz for m in modes.below(1000.0)]
+        z = [m.damping_ratio for m in modes.below(1000.0)]
+        G0 = modes.static_gain_um_per_V
+        twin = linearize(Stage(config=StageConfig.ideal(), model=model))
+        rec = {"index": int(i), "tolerances": values, "modes_hz": f, "damping_ratio": z,
+               "static_gain_um_per_V": G0.tolist(),
+               "xy_split_percent": 100.0 * (f[1] - f[0]) / (0.5 * (f[1] + f[0])) if len(f) > 1 else math.nan}
+        if with_loop and ctrl is not None:
+            rec.update(_loop_figures(linearize(Stage(model=model), include_piezo=True), ctrl))
+        home = Stage(model=model).table_um.copy()
+        plants.append(MemberPlant(twin=twin, model=model, home_um=home, static_gain_um_per_V=G0))
+        records.append(rec)
+    return plants, records, tm
+
+
+def run_chunk(plan: dict, indices: list, engine: str, sink) -> list[dict]:
+    """Worker task: samples ``indices`` (plant records and experiments on ``engine``); JSON-ready records."""
+    from nanosim import experiments
+    from nanosim.design.lti import single_threaded_blas
+    from nanosim.experiments.batch_suite import run_experiments_batch
+
+    t0 = time.perf_counter()
+    experiments.load_builtin()
+    ctrl = _controller_config(plan["controller"])
+    with single_threaded_blas():
+        plants, records, _ = sample_plants(indices, plan["seed"], ctrl, plan.get("mjcf"), with_loop=engine == "twin")
+        sink.put(len(indices))
+        # exact products: a sample's numbers do not depend on which samples share its batch (chunking,
+        # executor, resumed runs)
+        metrics, _ = run_experiments_batch(plan["experiments"], plants, ctrl, engine=engine, seed=plan["seed"],
+                                           exact=True, nthread=1, progress=lambda name: sink.put(len(indices)))
+    dt = (time.perf_counter() - t0) / max(1, len(indices))
+    out = []
+    for rec, met in zip(records, metrics):
+        rec.update(engine=engine, metrics=met, seconds=dt)
+        out.append(rec if engine == "twin" else {k: rec[k] for k in ("index", "engine", "metrics", "seconds")})
+    return out
+
+
+# ------------------------------------------------------------------------------ driver side
+def _sample_path(out: Path, sub: str, i: int) -> Path:
+    return out / sub / f"sample_{i:05d}.json"
+
+
+@contextlib.contextmanager
+def _writer_lock(out: Path):
+    """The run folder's writer lock (the lock file and pid convention of :mod:`runfolder`)."""
+    lock = out.parent / f".{out.name}.lock"
+    try:
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    except FileExistsError:
+        pid = None
+        with contextlib.suppress(OSError, ValueError):
+            pid = int(lock.read_text().strip() or "0")
+        alive = False
+        if pid:
+            try:
+                os.kill(pid, 0)
+                alive = True
+            except ProcessLookupError:
+                alive = False
+            except PermissionError:
+                alive = True
+        if alive:
+            raise RunFolderError(f"--out: another nanosim process (pid {pid}) is writing {str(out)!r}") from None
+        lock.unlink(missing_ok=True)
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    with os.fdopen(fd, "w") as fh:
+        fh.write(str(os.getpid()))
+    try:
+        yield
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def _plan(controller_path: Path, s: MonteCarloConfig, names, tm_dict) -> dict:
+    from nanosim.design.controller import DiscreteController
+
+    c = DiscreteController.from_npz(controller_path).config
+    mjcf_sha = sha256_file(Path(s.mjcf)) if s.mjcf else "bundled"
+    ident = {"seed": s.seed, "controller_sha256": sha256_file(controller_path), "mjcf": mjcf_sha,
+             "experiments": list(names), "tolerances_sha256": hashlib.sha256(
+                 json.dumps(tm_dict, sort_keys=True).encode()).hexdigest()}
+    return {"identity": ident, "seed": s.seed, "experiments": list(names), "mjcf": str(s.mjcf) if s.mjcf else None,
+            "controller": {"Akd": c.Akd, "Bkd": c.Bkd, "Ckd": c.Ckd, "Dkd": c.Dkd, "dt": c.dt, "n_error": c.n_error}}
+
+
+def _chunks(indices: list, size: int) -> list:
+    return [indices[k:k + size] for k in range(0, len(indices), size)]
+
+
+def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = None, *, progress: bool = True,
+                   say=None) -> dict:
+    """Run (or resume) a Monte Carlo into ``out``; returns ``summary.json``'s content.
+
+    Parameters
+    ----------
+    controller_path : path
+        ``controller.npz`` (the one controller of every sample).
+    out : path
+        Run folder (created; a rerun resumes it).
+    settings : MonteCarloConfig
+    progress : bool
+        Progress bar (stderr) aggregated over the workers.
+    say : callable, optional
+        One-line status messages (default: stderr).
+    """
+    settings = settings or MonteCarloConfig()
+    from nanosim import experiments
+    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.tolerances import default_tolerances
+
+    say = say or (lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
+    controller_path = Path(controller_path).resolve()
+    known = experiments.load_builtin()
+    spec = mc_stats.load_spec(settings.spec) if settings.spec else mc_stats.default_spec()
+    names = list(settings.experiments or known)
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise ValueError(f"experiments: unknown {bad[0]!r}; expected some of {list(known)}")
+    out = check_writable(out).resolve()
+    tm = default_tolerances(load_model(settings.mjcf))
+    plan = _plan(controller_path, settings, names, tm.to_dict())
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    with _writer_lock(out):
+        prev = out / PLAN_JSON
+        if prev.is_file():
+            old = json.loads(prev.read_text()).get("identity")
+            if old != plan["identity"]:
+                raise RunFolderError(f"--out: {str(out)!r} holds a Monte Carlo with another controller, seed, stage "
+                                     "or experiment list; choose another folder")
+        elif any(out.iterdir()):
+            raise RunFolderError(f"--out: {str(out)!r} is not empty and holds no Monte Carlo; choose another folder")
+        (out / "manifest.json").unlink(missing_ok=True)
+        write_json(prev, {"identity": plan["identity"], "n": settings.n, "mjcf": plan["mjcf"],
+                          "experiments": names, "engine": "linear twin, every effect on",
+                          "crosscheck_engine": "MuJoCo, every effect on"})
+        write_json(out / "tolerances.json", tm.to_dict())
+        write_json(out / "spec.json", spec)
+        timings = {}
+        n_cross = min(settings.crosscheck, settings.n)
+        for sub, engine, count in ((SAMPLES_DIR, "twin", settings.n), (CROSSCHECK_DIR, "mujoco", n_cross)):
+            todo = [i for i in range(count) if not _sample_path(out, sub, i).is_file()]
+            t0 = time.perf_counter()
+            if todo:
+                with open_executor(settings.scheduler, settings.workers) as scale:
+                    size = settings.chunk or max(1, min(64, math.ceil(len(todo) / (2 * scale.workers))))
+                    if engine == "mujoco":
+                        size = settings.chunk or max(1, math.ceil(len(todo) / scale.workers))
+                    say(f"{len(todo)} of {count} {engine} samples to run ({count - len(todo)} done) on "
+                        f"{scale.description}, chunks of {size}")
+                    units = len(names) + 1
+
+                    def done(task, records, sub=sub):
+                        for rec in records:
+                            write_json(_sample_path(out, sub, rec["index"]), rec)
+
+                    run_tasks(scale, run_chunk, [(plan, c, engine) for c in _chunks(todo, size)], done,
+                              total_units=count * units, done_units=(count - len(todo)) * units,
+                              desc=f"montecarlo {engine}", progress=progress)
+            timings[f"{engine}_seconds"] = round(time.perf_counter() - t0, 2)
+            timings[f"{engine}_samples_run"] = len(todo)
+        summary = summarize(out, settings, spec, names, tm)
+        summary["timings"] = timings
+        summary["wall_seconds"] = round(time.perf_counter() - t_start, 2)
+        write_json(out / SUMMARY_JSON, summary)
+        write_text(out / REPORT_MD, report_markdown(summary))
+        write_manifest(out, seed=settings.seed)
+    return summary
+
+
+def _load(out: Path, sub: str, n: int) -> list[dict]:
+    return [json.loads(_sample_path(out, sub, i).read_text()) for i in range(n) if _sample_path(out, sub, i).is_file()]
+
+
+def _flat(rec: dict) -> dict:
+    flat = mc_stats.flatten_metrics(rec.get("metrics", {}))
+    for k in ("closed_loop_stable", "disk_margin_alpha", "gain_margin_db", "phase_margin_deg", "xy_split_percent"):
+        if k in rec:
+            flat[k] = float(rec[k])
+    for j, f in enumerate(rec.get("modes_hz", [])[:6]):
+        flat[f"mode_{j + 1}_hz"] = float(f)
+    return flat
+
+
+def summarize(out: Path, settings: MonteCarloConfig, spec: dict, names, tm) -> dict:
+    """Yield, worst cases, sensitivity and cross-check from the sample files; writes the figures."""
+    from nanosim.plots.montecarlo import fig_crosscheck, fig_histograms, fig_sensitivity
+
+    recs = _load(out, SAMPLES_DIR, settings.n)
+    idx = [r["index"] for r in recs]
+    flats = [_flat(r) for r in recs]
+    table = mc_stats.yield_table(flats, spec)
+    worst = mc_stats.worst_cases(idx, flats, spec)
+    X = np.array([tm.normalized(r["tolerances"]) for r in recs]) if recs else np.zeros((0, len(tm.names)))
+    groups = [t.group for t in tm.tolerances]
+    sens_metrics = [lim["metric"] for lim in spec["limits"] if lim["metric"] != "closed_loop_stable"]
+    sens = mc_stats.sensitivity(X, list(tm.names), groups, flats, sens_metrics + list(SENSITIVITY_EXTRA))
+    cross = []
+    for rec in _load(out, CROSSCHECK_DIR, min(settings.crosscheck, settings.n)):
+        twin = next((f for r, f in zip(recs, flats) if r["index"] == rec["index"]), None)
+        if twin is not None:
+            c = mc_stats.compare_crosscheck(twin, mc_stats.flatten_metrics(rec["metrics"]))
+            c["sample"] = rec["index"]
+            cross.append(c)
+    errors = {r["index"]: r["metrics"]["errors"] for r in recs if r.get("metrics", {}).get("errors")}
+    summary = {"n": len(recs), "seed": settings.seed, "experiments": list(names), "yield": table,
+               "worst_cases": worst, "sensitivity": sens, "crosscheck": cross,
+               "crosscheck_pass": sum(c["all_ok"] for c in cross), "crosscheck_n": len(cross),
+               "crosscheck_max_rel_diff": max((r["rel_diff"] for c in cross for r in c["metrics"].values()),
+                                              default=None),
+               "errors": errors}
+    if recs:
+        save_figure(fig_histograms(flats, spec), out / FIG_HIST)
+        if sens:
+            save_figure(fig_sensitivity(sens), out / FIG_SENS)
+        if cross:
+            save_figure(fig_crosscheck(cross), out / FIG_CROSS)
+    return summary
+
+
+def _fmt(v) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "n/a"
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def report_markdown(summary: dict) -> str:
+    """``report.md`` of a Monte Carlo folder."""
+    lines = [f"# Monte Carlo: {summary['n']} fabricated stages (seed {summary['seed']})", "",
+             "Tolerances: `tolerances.json` (per-notch thickness and radius, link width, target mass, piezo gain;"
+             " each with its distribution and source). Experiments on each sample's linear twin, every effect on.",
+             "", "## Yield against the spec (`spec.json`)", "",
+             "| limit | metric | bound | unit | pass | yield | 95 % CI | median | worst |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in summary["yield"]:
+        bound = " ".join(x for x in ((f">= {r['min']:g}" if r.get("min") is not None else ""),
+                                     (f"<= {r['max']:g}" if r.get("max") is not None else "")) if x)
+        ci = r["ci95_percent"]
+        lines.append(f"| {r['label']} | `{r['metric']}` | {bound} | {r['unit']} | {r['pass']}/{r['n']} | "
+                     f"{_fmt(r['yield_percent'])} % | {_fmt(ci[0])}-{_fmt(ci[1])} % | {_fmt(r.get('median'))} | "
+                     f"{_fmt(r.get('worst'))} |")
+    lines += ["", "## Worst cases", "", "| metric | samples (value) |", "|---|---|"]
+    for m, rows in summary["worst_cases"].items():
+        lines.append(f"| `{m}` | " + ", ".join(f"#{r['sample']} ({_fmt(r['value'])})" for r in rows) + " |")
+    lines += ["", "## Sensitivity (adjusted R^2 of each tolerance group alone; top variables by Spearman rho)", "",
+              "| metric | groups (adj. R^2) | top variables (rho) |", "|---|---|---|"]
+    for m, s in summary["sensitivity"].items():
+        g = ", ".join(f"{d['group']} ({_fmt(d['adjusted_r2'])})" for d in s["groups"][:3])
+        v = ", ".join(f"{d['name']} ({d['spearman_rho']:+.2f})" for d in s["top_variables"][:3])
+        lines.append(f"| `{m}` | {g} | {v} |")
+    lines += ["", f"## MuJoCo cross-check ({summary['crosscheck_pass']} of {summary['crosscheck_n']} samples with "
+              "every metric within 5 %)", ""]
+    if summary["crosscheck"]:
+        lines += ["| sample | metrics within 5 % | largest difference |", "|---|---|---|"]
+        for c in summary["crosscheck"]:
+            big = max(c["metrics"].items(), key=lambda kv: kv[1]["rel_diff"]) if c["metrics"] else ("", {})
+            lines.append(f"| #{c['sample']} | {sum(r['ok'] for r in c['metrics'].values())}/{len(c['metrics'])} | "
+                         f"`{big[0]}` {100 * big[1].get('rel_diff', math.nan):.2f} % |")
+    lines += ["", "## Figures", "", f"![histograms]({FIG_HIST})", "", f"![sensitivity]({FIG_SENS})", "",
+              f"![cross-check]({FIG_CROSS})", ""]
+    if summary["errors"]:
+        lines += ["## Errors", ""] + [f"- sample {i}: {e}" for i, e in summary["errors"].items()]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,212 @@
+"""Where independent tasks run: in this process, a local process pool, or a Dask cluster.
+
+:func:`open_executor` gives a ``concurrent.futures``-style executor and a
+progress channel for the three cases:
+
+* ``scheduler=None``: a :class:`~concurrent.futures.ProcessPoolExecutor` with
+  one worker per CPU (``workers=1``: in this process, no pool);
+* ``scheduler="local"``: a Dask ``LocalCluster`` on 127.0.0.1 sized to the
+  machine (one single-threaded worker process per CPU);
+* ``scheduler="tcp://HOST:8786"``: an existing Dask scheduler (start one with
+  ``dask scheduler`` and ``dask worker``, dask-jobqueue on Slurm/PBS, or the
+  Dask Kubernetes operator; see the README).
+
+The same task functions run unchanged on all of them (module-level functions
+with plain data in and JSON-ready data out). Tasks report progress by putting
+integers on the channel they are given (a manager queue locally, a
+``distributed.Queue`` on Dask); :func:`run_tasks` adds them to one progress
+bar, so the ETA covers every worker.
+"""
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import queue
+import sys
+import time
+import uuid
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable
+
+__all__ = ["ScaleOut", "open_executor", "run_tasks", "cpu_workers"]
+
+
+def cpu_workers() -> int:
+    """CPUs this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:      # pragma: no cover -- not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+class _InlineExecutor:
+    """Runs each task at submit time in this process (one worker, no pickling)."""
+
+    def submit(self, fn, *args, **kwargs) -> Future:
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:      # noqa: BLE001 -- delivered through the future
+            if isinstance(exc, KeyboardInterrupt):
+                raise
+            fut.set_exception(exc)
+        return fut
+
+    def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
+        return None
+
+
+class _DaskChannel:
+    """Progress channel on a ``distributed.Queue`` (picklable; workers reconnect to it)."""
+
+    def __init__(self, client):
+        from distributed import Queue
+
+        self._q = Queue(f"nanosim-progress-{uuid.uuid4().hex}", client=client)
+
+    @property
+    def sink(self):
+        return self._q
+
+    def drain(self) -> int:
+        total = 0
+        with contextlib.suppress(Exception):
+            n = self._q.qsize()
+            if n:
+                items = self._q.get(batch=n)
+                total = sum(int(x) for x in items)
+        return total
+
+
+class _QueueChannel:
+    """Progress channel on a local queue (a manager proxy for worker processes)."""
+
+    def __init__(self, q):
+        self._q = q
+
+    @property
+    def sink(self):
+        return self._q
+
+    def drain(self) -> int:
+        total = 0
+        while True:
+            try:
+                total += int(self._q.get_nowait())
+            except (queue.Empty, EOFError, OSError):
+                return total
+
+
+@dataclass
+class ScaleOut:
+    """An open executor.
+
+    Attributes
+    ----------
+    executor : object
+        ``submit(fn, *args) -> concurrent.futures.Future``.
+    channel : object
+        Progress channel: ``sink`` (pass it to tasks; they call ``sink.put(n)``) and ``drain()``.
+    description : str
+        Where the tasks run (for logs and the run record).
+    workers : int
+        Number of workers.
+    """
+
+    executor: Any
+    channel: Any
+    description: str
+    workers: int
+
+
+@contextlib.contextmanager
+def open_executor(scheduler: str | None = None, workers: int | None = None):
+    """Open an executor (see the module docstring); yields a :class:`ScaleOut`.
+
+    Parameters
+    ----------
+    scheduler : None, "local" or "tcp://HOST:PORT"
+    workers : int, optional
+        Worker processes for the local pool or the LocalCluster (default: CPUs).
+    """
+    n = int(workers) if workers else cpu_workers()
+    if n < 1:
+        raise ValueError(f"workers: expected a positive integer, got {workers!r}")
+    if scheduler is None:
+        if n == 1:
+            yield ScaleOut(_InlineExecutor(), _QueueChannel(queue.Queue()), "this process", 1)
+            return
+        ctx = multiprocessing.get_context("spawn")
+        with ctx.Manager() as manager, ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+            try:
+                yield ScaleOut(pool, _QueueChannel(manager.Queue()), f"local process pool ({n} workers)", n)
+            except BaseException:
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
+        return
+    if not isinstance(scheduler, str) or not (scheduler == "local" or "://" in scheduler):
+        raise ValueError(f"--scheduler: expected 'local' or an address like tcp://HOST:8786, got {scheduler!r}")
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:       # pragma: no cover -- dask[distributed] is a dependency
+        raise ValueError("--scheduler: needs dask[distributed] (pip install 'dask[distributed]')") from None
+    cluster = None
+    try:
+        if scheduler == "local":
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                   dashboard_address=None)
+            client = Client(cluster)
+            where = f"Dask LocalCluster on 127.0.0.1 ({n} workers)"
+        else:
+            try:
+                client = Client(scheduler, timeout=10)
+            except (OSError, TimeoutError) as exc:
+                raise ValueError(f"--scheduler: cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+            n = max(1, len(client.scheduler_info().get("workers", {})))
+            where = f"Dask scheduler {scheduler} ({n} workers)"
+        try:
+            yield ScaleOut(client.get_executor(pure=False), _DaskChannel(client), where, n)
+        finally:
+            client.close()
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
+def run_tasks(scale: ScaleOut, fn: Callable, tasks: Iterable[tuple], on_result: Callable[[tuple, Any], None], *,
+              total_units: int, desc: str, progress: bool = True, done_units: int = 0) -> None:
+    """Submit ``fn(*task, sink)`` for every task; call ``on_result(task, result)`` as each finishes.
+
+    Tasks report progress units with ``sink.put(n)``; the bar shows them across all workers.
+    A task's failure propagates after the results that finished before it were handled.
+    """
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=total_units, initial=done_units, desc=desc, unit="step", file=sys.stderr,
+                   smoothing=0.05, dynamic_ncols=True)
+    sink = scale.channel.sink
+    futures = {}
+    try:
+        for task in tasks:
+            futures[scale.executor.submit(fn, *task, sink)] = task
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+            got = scale.channel.drain()
+            if bar is not None and got:
+                bar.update(got)
+            for fut in done:
+                on_result(futures[fut], fut.result())
+        if bar is not None:
+            time.sleep(0.05)
+            bar.update(scale.channel.drain())
+    except BaseException:
+        for fut in futures:
+            fut.cancel()
+        raise
+    finally:
+        if bar is not None:
+            bar.close()

@@ -1,0 +1,106 @@
+"""Figures of a population of stages (``nanosim montecarlo``) and of a design sweep (``nanosim sweep``).
+
+Each function returns a matplotlib Figure and writes nothing.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from nanosim.plots.style import subplots
+
+__all__ = ["fig_histograms", "fig_sensitivity", "fig_crosscheck", "fig_pareto"]
+
+
+def fig_histograms(flats: list, spec: dict):
+    """One histogram per spec limit (and the first mode, XY split, disk margin) with the limits drawn."""
+    items = [(lim["metric"], lim.get("label", lim["metric"]), lim.get("min"), lim.get("max"), lim["unit"])
+             for lim in spec["limits"] if lim["metric"] != "closed_loop_stable"]
+    items += [("mode_1_hz", "first mode", None, None, "Hz"), ("xy_split_percent", "XY split, first pair", None,
+                                                              None, "%"),
+              ("disk_margin_alpha", "disk margin alpha", None, None, "-")]
+    ncol = 4
+    nrow = math.ceil(len(items) / ncol)
+    fig, axs = subplots(nrow, ncol, figsize=(3.3 * ncol, 2.6 * nrow), squeeze=False)
+    for ax, (m, label, lo, hi, unit) in zip(axs.ravel(), items):
+        v = np.array([f.get(m, math.nan) for f in flats], float)
+        v = v[np.isfinite(v)]
+        if v.size:
+            ax.hist(v, bins=min(30, max(5, v.size // 5)), color="tab:blue", alpha=0.75)
+        for x in (lo, hi):
+            if x is not None:
+                ax.axvline(x, color="tab:red", lw=1.5)
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel(f"{m} [{unit}]", fontsize=7)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    for ax in axs.ravel()[len(items):]:
+        ax.set_visible(False)
+    fig.suptitle(f"{len(flats)} fabricated stages: metric distributions (red: spec limits)")
+    return fig
+
+
+def fig_sensitivity(sens: dict, top_groups: int = 9):
+    """Adjusted R^2 of each tolerance group alone, per metric (a heat map)."""
+    metrics = list(sens)
+    groups = []
+    for m in metrics:
+        for g in sens[m]["groups"]:
+            if g["group"] not in groups:
+                groups.append(g["group"])
+    groups = groups[:top_groups]
+    M = np.full((len(metrics), len(groups)), np.nan)
+    for i, m in enumerate(metrics):
+        for g in sens[m]["groups"]:
+            if g["group"] in groups:
+                M[i, groups.index(g["group"])] = g["adjusted_r2"]
+    fig, ax = subplots(1, 1, figsize=(1.1 * len(groups) + 4, 0.42 * len(metrics) + 2))
+    im = ax.imshow(np.clip(M, 0, 1), vmin=0, vmax=1, cmap="viridis", aspect="auto")
+    ax.set_xticks(range(len(groups)), groups, rotation=35, ha="right", fontsize=8)
+    ax.set_yticks(range(len(metrics)), metrics, fontsize=8)
+    for i in range(len(metrics)):
+        for j in range(len(groups)):
+            if np.isfinite(M[i, j]):
+                ax.text(j, i, f"{M[i, j]:.2f}", ha="center", va="center", fontsize=7,
+                        color="white" if M[i, j] < 0.5 else "black")
+    fig.colorbar(im, ax=ax, label="adjusted R^2 (group alone)")
+    ax.set_title("Which tolerances matter: variance of each metric explained by one tolerance group")
+    return fig
+
+
+def fig_crosscheck(cross: list):
+    """Twin vs MuJoCo, relative difference of every cross-checked metric per sample (5 % band)."""
+    metrics = sorted({m for c in cross for m in c["metrics"]})
+    fig, ax = subplots(1, 1, figsize=(9, 0.35 * len(metrics) + 2))
+    for k, c in enumerate(cross):
+        y = [metrics.index(m) + 0.6 * (k / max(1, len(cross) - 1) - 0.5) for m in c["metrics"]]
+        x = [100 * (r["twin"] - r["mujoco"]) / max(abs(r["mujoco"]), 1e-12) for r in c["metrics"].values()]
+        ax.plot(x, y, "o", ms=3, label=f"#{c['sample']}")
+    ax.axvspan(-5, 5, color="tab:green", alpha=0.12, label="within 5 %")
+    ax.set_yticks(range(len(metrics)), metrics, fontsize=8)
+    ax.set_xlabel("(twin - MuJoCo) / MuJoCo [%]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2, loc="best")
+    ax.set_title("Cross-check: linear twin vs MuJoCo on the same fabricated stages")
+    return fig
+
+
+def fig_pareto(points: list, front: list, x: str, y: str, c: str, labels: dict | None = None):
+    """Design sweep: ``x`` vs ``y`` coloured by ``c``; the Pareto-optimal points circled and labelled."""
+    labels = labels or {}
+    fig, ax = subplots(1, 1, figsize=(8, 5.5))
+    xv = np.array([p.get(x, math.nan) for p in points], float)
+    yv = np.array([p.get(y, math.nan) for p in points], float)
+    cv = np.array([p.get(c, math.nan) for p in points], float)
+    sc = ax.scatter(xv, yv, c=cv, cmap="viridis", s=40, zorder=3)
+    fig.colorbar(sc, ax=ax, label=labels.get(c, c))
+    for i in front:
+        ax.scatter(xv[i], yv[i], s=140, facecolors="none", edgecolors="tab:red", lw=1.5, zorder=4)
+        ax.annotate(points[i].get("label", str(i)), (xv[i], yv[i]), fontsize=7, xytext=(4, 4),
+                    textcoords="offset points")
+    ax.set_xlabel(labels.get(x, x))
+    ax.set_ylabel(labels.get(y, y))
+    ax.grid(alpha=0.3)
+    ax.set_title("Design sweep: bandwidth vs travel vs resolution (red: Pareto-optimal)")
+    return fig

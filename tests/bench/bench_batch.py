@@ -1,0 +1,124 @@
+"""Batch engine throughput, each target a ratio measured in the same run (issue 14).
+
+Run: OPENBLAS_NUM_THREADS=1 python -m pytest tests/bench/bench_batch.py --benchmark-enable -s
+
+* MuJoCo: B stages in closed loop stepped from 2 threads vs 1 thread (target >= 1.8x).
+* Linear twin, every effect on, B = 256 members with their own twins, a 29-state two-degree-of-freedom
+  controller, on 2 worker processes of 128 members: aggregate simulated seconds per wall second
+  (target >= 1000x real time), next to the single-stage twin loop (TwinStage + DiscreteController).
+"""
+import multiprocessing
+import time
+
+import numpy as np
+import pytest
+
+from nanosim.design.controller import ControllerConfig, DiscreteController
+from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
+from nanosim.experiments.loop import run_closed_loop
+from nanosim.plant.batch import BatchMujocoStage, BatchTwinStage
+from nanosim.plant.linearize import linearize
+from nanosim.plant.mjcf import load_model
+from nanosim.plant.modes import modal_analysis
+from nanosim.plant.stage import Stage, StageConfig
+from nanosim.plant.twin import TwinStage
+
+TWIN_B, TWIN_SIM_S = 256, 1.0
+MJ_B, MJ_SIM_S = 16, 0.1
+
+
+def controller_29(G0_um_per_V) -> ControllerConfig:
+    """A stable 29-state controller with inputs [e; y]: a leaky integrator through inv(G0) and a
+    26-state stable filter of the measurement (the cost depends on the dimensions only)."""
+    rng = np.random.default_rng(0)
+    T = 2.5e-4
+    g = 2 * np.pi * 20 * T * np.linalg.inv(G0_um_per_V / 5.0)
+    Ar = rng.standard_normal((26, 26))
+    Ar *= 0.95 / np.max(np.abs(np.linalg.eigvals(Ar)))
+    A = np.zeros((29, 29))
+    A[:3, :3] = 0.9995 * np.eye(3)
+    A[3:, 3:] = Ar
+    B = np.zeros((29, 6))
+    B[:3, :3] = np.eye(3)
+    B[3:, 3:] = 0.01 * rng.standard_normal((26, 3))
+    C = np.hstack([g, 1e-3 * rng.standard_normal((3, 26))])
+    D = np.hstack([g, np.zeros((3, 3))])
+    return ControllerConfig(A, B, C, D, T, n_error=3)
+
+
+def _reference(n):
+    ref = np.zeros((n, 3))
+    ref[:, 0] = 2.0 * np.sin(2 * np.pi * 10 * np.arange(n) / 4000.0)
+    return ref
+
+
+def _twin_worker(n_members, seed0, sim_s, barrier):
+    """One worker process: n_members twins (their own copies) in closed loop; returns its run time."""
+    model = load_model()
+    tw = linearize(Stage(config=StageConfig.ideal(), model=model))
+    home = Stage(model=model).table_um
+    ctrl = controller_29(modal_analysis(model).static_gain_um_per_V)
+    stage = BatchTwinStage([tw] * n_members, list(range(seed0, seed0 + n_members)), home_um=home, exact=False)
+    bank = BatchController(ctrl, n=n_members, exact=False)
+    ref = _reference(int(sim_s * 4000))
+    if barrier is not None:
+        barrier.wait()
+    t0 = time.perf_counter()
+    run_closed_loop_batch(stage, bank, ref, settle=False)
+    return time.perf_counter() - t0
+
+
+def twin_aggregate(processes=2, members=TWIN_B, sim_s=TWIN_SIM_S) -> float:
+    """Aggregate real-time factor of ``members`` twins split over ``processes`` worker processes."""
+    per = members // processes
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Manager() as mgr, ctx.Pool(processes) as pool:
+        barrier = mgr.Barrier(processes)
+        times = pool.starmap(_twin_worker, [(per, k * per, sim_s, barrier) for k in range(processes)])
+    return members * sim_s / max(times)
+
+
+def single_twin_rt(sim_s=0.5) -> float:
+    model = load_model()
+    tw = linearize(Stage(config=StageConfig.ideal(), model=model))
+    ctrl = DiscreteController(controller_29(modal_analysis(model).static_gain_um_per_V))
+    st = TwinStage(tw, seed=0, home_um=Stage(model=model).table_um)
+    ref = _reference(int(sim_s * 4000))
+    t0 = time.perf_counter()
+    run_closed_loop(st, ctrl, ref, settle=False)
+    return sim_s / (time.perf_counter() - t0)
+
+
+def mujoco_rt(nthread, members=MJ_B, sim_s=MJ_SIM_S) -> float:
+    model = load_model()
+    ctrl = controller_29(modal_analysis(model).static_gain_um_per_V)
+    ref = _reference(int(sim_s * 4000))
+    with BatchMujocoStage(model, list(range(members)), nthread=nthread) as stage:
+        bank = BatchController(ctrl, n=members, exact=False)
+        t0 = time.perf_counter()
+        run_closed_loop_batch(stage, bank, ref, settle=False)
+        return members * sim_s / (time.perf_counter() - t0)
+
+
+def test_mujoco_two_threads_vs_one(benchmark):
+    benchmark.pedantic(mujoco_rt, args=(2,), rounds=1, iterations=1)
+    one = mujoco_rt(1)
+    two = mujoco_rt(2)
+    print(f"\nMuJoCo batch, B = {MJ_B}: 1 thread {one:.2f}x real time, 2 threads {two:.2f}x; ratio {two / one:.2f} "
+          "(target >= 1.8)")
+    benchmark.extra_info.update(one_thread_rt=one, two_threads_rt=two, ratio=two / one)
+
+
+def test_twin_batch_aggregate(benchmark):
+    benchmark.pedantic(twin_aggregate, kwargs=dict(sim_s=0.1), rounds=1, iterations=1)
+    single = single_twin_rt()
+    one_proc = twin_aggregate(processes=1, members=TWIN_B // 2)
+    agg = twin_aggregate()
+    print(f"\nlinear twin, every effect on, 29-state controller: single stage {single:.1f}x real time; "
+          f"batch of {TWIN_B // 2} on 1 process {one_proc:.0f}x aggregate; batch of {TWIN_B} on 2 processes "
+          f"{agg:.0f}x aggregate (target >= 1000x); batch / single = {agg / single:.0f}")
+    benchmark.extra_info.update(single_rt=single, one_process_rt=one_proc, aggregate_rt=agg)
+
+
+if __name__ == "__main__":
+    pytest.main([__file__, "--benchmark-enable", "-s", "-q"])

@@ -1,0 +1,169 @@
+"""Tolerance model, population statistics, and ``nanosim montecarlo`` / ``nanosim sweep`` end to end (tiny N)."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from nanosim.pipeline import mc_stats
+from nanosim.pipeline.config import MonteCarloConfig
+from nanosim.pipeline.montecarlo import run_montecarlo
+from nanosim.pipeline.runfolder import RunFolderError, verify_manifest
+from nanosim.pipeline.sweep import parse_param, pareto_front, point_model
+from nanosim.plant.mjcf import load_model
+from nanosim.plant.tolerances import NOTCHES, default_tolerances, notch_stiffness_ratio, sample_model
+
+
+@pytest.fixture(scope="module")
+def tm():
+    return default_tolerances()
+
+
+# --- tolerance model ---------------------------------------------------------------------------------
+def test_samples_reproducible_bounded_and_sourced(tm):
+    a, b = tm.sample(3, 5), tm.sample(3, 5)
+    assert a == b and a != tm.sample(3, 6) and a != tm.sample(4, 5)
+    for t in tm.tolerances:
+        assert abs(a[t.name] - t.nominal) <= t.half_width
+        assert t.source and t.unit
+    assert len([n for n in tm.names if n.startswith("thickness.")]) == 3 * len(NOTCHES)
+    x = np.array([tm.normalized(tm.sample(0, i)) for i in range(300)])
+    assert np.all(np.abs(x) <= 1) and abs(x.mean()) < 0.02 and abs(x.var() - 1 / 3) < 0.01     # uniform(-1, 1)
+
+
+def test_nominal_sample_is_symmetric_and_pw_scaling_applies(tm, model):
+    nominal = sample_model(tm.nominal(), tm)
+    for suffix in ("crank", "foot", "h1", "rocker_p", "leg_top", "lever"):
+        k = [nominal.jnt_stiffness[nominal.joint(f"{c}_{suffix}").id] for c in "abc"]
+        assert k[0] == k[1] == k[2] == np.median([model.jnt_stiffness[model.joint(f"{c}_{suffix}").id]
+                                                  for c in "abc"])
+    v = tm.nominal()
+    t0 = v["thickness.a_h1"]
+    v["thickness.a_h1"] = v["thickness.a_h2"] = t0 + 5.0
+    v["radius.b_lever"] += 5.0
+    v["target_mass"] *= 1.02
+    v["piezo_gain.c"] = 1.1
+    v["width.a_foot"] += 5.0
+    m = sample_model(v, tm)
+    ratio = m.jnt_stiffness[m.joint("a_h1").id] / m.jnt_stiffness[m.joint("b_h1").id]
+    assert ratio == pytest.approx(((t0 + 5) / t0) ** 2.5, rel=1e-12)
+    assert ratio == pytest.approx(notch_stiffness_ratio(t0 + 5, t0), rel=1e-15)
+    lever = m.jnt_stiffness[m.joint("b_lever").id] / m.jnt_stiffness[m.joint("a_lever").id]
+    assert lever == pytest.approx(math.sqrt(1000.0 / 1005.0), rel=1e-12)           # k ~ R^-1/2
+    assert m.body_mass[m.body("table").id] == pytest.approx(1.02 * model.body_mass[model.body("table").id])
+    assert m.actuator_gainprm[m.actuator("piezo_c").id, 0] == pytest.approx(1.1)
+    assert m.body_mass[m.body("a_foot").id] / m.body_mass[m.body("b_foot").id] == pytest.approx(2405 / 2400)
+
+
+# --- statistics ----------------------------------------------------------------------------------------
+def test_wilson_interval_and_yield_table():
+    lo, hi = mc_stats.wilson_interval(0, 10)
+    assert lo == 0.0 and hi == pytest.approx(0.2775, abs=1e-4)       # textbook value, z = 1.96
+    lo, hi = mc_stats.wilson_interval(8, 10)
+    assert (lo, hi) == pytest.approx((0.4902, 0.9433), abs=1e-4)
+    spec = mc_stats.check_spec({"limits": [{"metric": "bandwidth_S_hz", "min": 28, "unit": "Hz"},
+                                           {"metric": "step_2um.overshoot_percent", "max": 10, "unit": "%"}]})
+    flats = [{"bandwidth_S_hz": b, "step_2um.overshoot_percent": o} for b, o in ((30, 5), (27, 5), (29, 12), (31, 1))]
+    rows = {r["metric"]: r for r in mc_stats.yield_table(flats, spec)}
+    assert rows["bandwidth_S_hz"]["pass"] == 3 and rows["all"]["pass"] == 2
+    assert rows["bandwidth_S_hz"]["worst"] == 27 and rows["step_2um.overshoot_percent"]["worst"] == 12
+    worst = mc_stats.worst_cases([10, 11, 12, 13], flats, spec, k=1)
+    assert worst["bandwidth_S_hz"][0]["sample"] == 11
+
+
+def test_spec_units_and_flat_names_are_checked():
+    with pytest.raises(ValueError, match="unit must be 'nm'"):
+        mc_stats.check_spec({"limits": [{"metric": "resolution_sigma_nm.closed_loop", "max": 3, "unit": "um"}]})
+    with pytest.raises(ValueError, match="'min' and/or 'max'"):
+        mc_stats.check_spec({"limits": [{"metric": "bandwidth_S_hz", "unit": "Hz"}]})
+    flat = mc_stats.flatten_metrics({"tracking": [{"waveform": "sine", "freq_hz": 20.0, "rms_error_nm": 3.0}],
+                                     "contouring": [{"speed_um_s": 1000.0, "mean_error_nm": 90.0}],
+                                     "small_steps": {"targets_nm": [0, 10], "plateau_means_nm": [0, 12.5]}})
+    assert flat["tracking.sine_20hz.rms_error_nm"] == 3.0 and flat["contouring.1000um_s.mean_error_nm"] == 90.0
+    assert flat["small_steps.max_error_nm"] == 2.5
+    assert mc_stats.unit_of("contouring.1000um_s.axis_tracking_error_um") == "um"
+    assert mc_stats.unit_of("resolution_sigma_nm.closed_loop") == "nm"
+    mc_stats.check_spec(mc_stats.default_spec())
+
+
+def test_sensitivity_finds_the_driving_group():
+    rng = np.random.default_rng(1)
+    X = rng.uniform(-1, 1, size=(200, 6))
+    groups = ["a", "a", "b", "b", "c", "c"]
+    y = 3 * X[:, 2] + 0.1 * rng.standard_normal(200)
+    s = mc_stats.sensitivity(X, [f"v{i}" for i in range(6)], groups, [{"m_hz": v} for v in y], ["m_hz"])["m_hz"]
+    assert s["groups"][0]["group"] == "b" and s["groups"][0]["adjusted_r2"] > 0.95
+    assert all(g["adjusted_r2"] < 0.05 for g in s["groups"][1:])
+    assert s["top_variables"][0]["name"] == "v2"
+
+
+def test_pareto_front_and_sweep_parameters():
+    pts = [{"bandwidth_S_hz": 30, "travel_um": 80, "resolution_nm": 2.0},
+           {"bandwidth_S_hz": 25, "travel_um": 70, "resolution_nm": 2.5},       # dominated by 0
+           {"bandwidth_S_hz": 20, "travel_um": 120, "resolution_nm": 2.0},
+           {"bandwidth_S_hz": 35, "travel_um": 60, "resolution_nm": math.nan}]
+    assert pareto_front(pts) == [0, 2]
+    assert parse_param("thickness.swing=90:130:3") == ("thickness.swing", 90.0, 130.0, 3)
+    for bad in ("thickness.swing=90:130", "nope=1:2:2", "target_mass_g=0:2:2"):
+        with pytest.raises(ValueError, match="--param"):
+            parse_param(bad)
+    m = point_model({"stiffness.swing": 2.0, "target_mass_g": 30.0})
+    base = load_model()
+    assert m.jnt_stiffness[m.joint("b_h1").id] == pytest.approx(2 * base.jnt_stiffness[base.joint("b_h1").id])
+    assert m.body_mass[m.body("table").id] == pytest.approx(0.030)
+
+
+# --- end to end ----------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def controller_npz(tmp_path_factory, model):
+    from nanosim.fileio import write_npz
+    from nanosim.plant.modes import modal_analysis
+
+    G0 = modal_analysis(model).static_gain_um_per_V
+    T = 2.5e-4
+    g = 2 * np.pi * 1.0 * T * np.linalg.inv(G0 / 5.0)      # 1 Hz integral loop: stable despite Q ~ 100 modes
+    return write_npz(tmp_path_factory.mktemp("ctrl") / "controller.npz", Akd=0.9995 * np.eye(3), Bkd=np.eye(3),
+                     Ckd=g, Dkd=g, dt=np.float64(T))
+
+
+def _samples(folder):
+    return {p.name: json.loads(p.read_text()) for p in sorted((folder / "samples").glob("sample_*.json"))}
+
+
+def test_montecarlo_writes_per_sample_resumes_and_seals(tmp_path, controller_npz):
+    out = tmp_path / "mc"
+    cfg = MonteCarloConfig(n=2, seed=4, crosscheck=1, workers=1, experiments=("small_steps",))
+    s = run_montecarlo(controller_npz, out, cfg, progress=False)
+    assert s["n"] == 2 and s["crosscheck_n"] == 1
+    assert {"summary.json", "report.md", "tolerances.json", "spec.json", "montecarlo.json",
+            "fig_mc_histograms.png"} <= {p.name for p in out.iterdir()}
+    verify_manifest(out)
+    first = _samples(out)
+    assert set(first) == {"sample_00000.json", "sample_00001.json"}
+    rec = first["sample_00000.json"]
+    assert rec["closed_loop_stable"] and 0 < rec["disk_margin_alpha"] < 2 and len(rec["modes_hz"]) == 6
+    cross = s["crosscheck"][0]["metrics"]
+    assert cross, "the MuJoCo cross-check compared no metric"
+    mtimes = {p: p.stat().st_mtime_ns for p in (out / "samples").iterdir()}
+    s2 = run_montecarlo(controller_npz, out, MonteCarloConfig(n=3, seed=4, crosscheck=1, workers=1,
+                                                              experiments=("small_steps",)), progress=False)
+    assert s2["timings"]["twin_samples_run"] == 1 and s2["timings"]["mujoco_samples_run"] == 0
+    assert all(p.stat().st_mtime_ns == t for p, t in mtimes.items())       # finished samples untouched
+    verify_manifest(out)
+    with pytest.raises(RunFolderError, match="another controller, seed"):
+        run_montecarlo(controller_npz, out, MonteCarloConfig(n=2, seed=5, crosscheck=0, workers=1,
+                                                             experiments=("small_steps",)), progress=False)
+
+
+def test_local_cluster_gives_the_local_numbers(tmp_path, controller_npz):
+    pytest.importorskip("distributed")
+    cfg = dict(n=2, seed=7, crosscheck=0, experiments=("small_steps",))
+    run_montecarlo(controller_npz, tmp_path / "local", MonteCarloConfig(**cfg, workers=1), progress=False)
+    run_montecarlo(controller_npz, tmp_path / "dask", MonteCarloConfig(**cfg, workers=2, scheduler="local"),
+                   progress=False)
+    a, b = _samples(tmp_path / "local"), _samples(tmp_path / "dask")
+    assert a.keys() == b.keys()
+    for k in a:
+        for rec in (a[k], b[k]):
+            rec.pop("seconds")
+        assert a[k] == b[k]
