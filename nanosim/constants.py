@@ -11,7 +11,12 @@ import numpy as np
 
 __all__ = ["CONTROL_RATE_HZ", "CONTROL_PERIOD_S", "AMPLIFIER_GAIN", "COMMAND_RANGE_V", "PIEZO_MAX_V",
            "PIEZO_FREE_STROKE_M", "PIEZO_BLOCKING_FORCE_N", "PIEZO_STIFFNESS_N_PER_M",
-           "PIEZO_FORCE_PER_PIEZO_V", "SENSOR_UM_PER_V", "SENSOR_RANGE_UM", "SENSOR_NOISE_NM_RMS_1KHZ",
+           "PIEZO_FORCE_PER_PIEZO_V", "CREEP_PER_DECADE", "CREEP_TAU_MIN_S", "CREEP_TAU_MAX_S",
+           "CREEP_STAGES_PER_DECADE",
+           "COMPUTATION_DELAY_SAMPLES", "AMPLIFIER_BANDWIDTH_HZ",
+           "AMPLIFIER_NOISE_V", "DAC_WHITE_NOISE_V", "DAC_FLICKER_CORNER_HZ", "GAUGE_BANDWIDTH_HZ",
+           "GAUGE_FILTER_ORDER", "FLOOR_ACCEL_PSD_M2_S4_HZ", "SENSOR_UM_PER_V", "SENSOR_RANGE_UM",
+           "SENSOR_NOISE_NM_RMS_1KHZ",
            "ADC_BITS", "ADC_FULL_SCALE_V", "ADC_LSB_V", "ADC_LSB_NM", "JACOBIAN_J",
            "STATIC_GAIN_SCALE_UM_PER_V", "AXES", "ACTUATORS"]
 
@@ -30,6 +35,53 @@ PIEZO_STIFFNESS_N_PER_M = PIEZO_BLOCKING_FORCE_N / PIEZO_FREE_STROKE_M   # 4.909
 # Blocked force per piezo volt; the actuator force on the tendon is
 # F = PIEZO_FORCE_PER_V * v_free, with v_free the hysteretic "free-strain voltage".
 PIEZO_FORCE_PER_PIEZO_V = PIEZO_BLOCKING_FORCE_N / PIEZO_MAX_V         # 0.18 N/V
+
+# --- piezo creep (nanosim.plant.piezo) ----------------------------------------
+# Logarithmic creep, x(t) = x(t0) (1 + gamma log10(t / t0)): PI Piezo Tutorial (Cat. 118,
+# p. 4-18; physikinstrumente.com/tutorial/4_21.html) gives gamma = 0.01-0.02 per decade for
+# stacks; 0.02 is the top of that range, which the paper's identified creep doublets (zero 8-11 %
+# above the pole in every column, Appendix A) favour. Realized by Kelvin-Voigt stages from
+# 1 ms to 100 s (the law has no time constant; the range covers every record the simulator runs).
+CREEP_PER_DECADE = 0.02
+CREEP_TAU_MIN_S = 1e-3
+CREEP_TAU_MAX_S = 100.0
+CREEP_STAGES_PER_DECADE = 2
+
+# --- the bench loop (nanosim.plant.electronics; notes/stage_v2_sources.md items 4-6) -------
+# Computation delay between the controller's output and the DAC update, whole samples. The
+# UMAC computes the 19-state controller after the ADC sample and writes the DAC within or at the
+# end of the servo cycle: 0-1 sample; the bench spec and notes item 6 take one full sample
+# (Appendix A's right-half-plane zeros near 2/T do not separate 0 from 1: the simulated
+# identification shows such zeros either way). Sensitivity rows: 0 and 2 (pipeline/ablation.py).
+COMPUTATION_DELAY_SAMPLES = 1
+# Amplifier small-signal bandwidth into the APA35XS capacitance (first order). PiezoDrive PD200
+# (gain 20): 7.4 kHz small-signal into 10 uF, i.e. R_out ~ 2.2 ohm (Dehaeze, test-bench-pd200);
+# into an APA35XS (0.05-0.5 uF, estimated) the RC pole is above 100 kHz and the amplifier's own
+# bandwidth dominates: >= 10 kHz; 10 kHz is the conservative end (a lag of 16 us).
+AMPLIFIER_BANDWIDTH_HZ = 10e3
+# Amplifier noise, referred to its input (controller V per sample over the 2 kHz Nyquist band):
+# PD200 0.7 mV rms at the output into 10 uF (ENBW 1.57 x 7.4 kHz) -> 6.5 uV/sqrt(Hz) at the
+# piezo -> 0.33 uV/sqrt(Hz) at the input -> 14.5 uV rms over 2 kHz.
+AMPLIFIER_NOISE_V = 14.5e-6
+# DAC electrical noise, the standard electronic-noise spectrum e_n^2 (1 + f_c / f): the paper says
+# most of its noise came from the DAC and that this "high frequency noise will vibrate the stage"
+# (Sec. 5). The level is the ONE noise level fitted to the paper: the open-loop probe sigma at rest,
+# 11.4 nm (tests/test_stage.py), with every other source at its sourced level. Controller V per
+# sample, white part (a datasheet-level 16-18 bit DAC alone gives ~10-50 uV; the fitted level is
+# about 9x that, i.e. interference, reference and ground noise, as the paper suspected).
+DAC_WHITE_NOISE_V = 2.7e-4
+# 1/f corner of that noise: typical of precision op-amp/reference output stages (1-100 Hz); 10 Hz.
+DAC_FLICKER_CORNER_HZ = 10.0
+# Capacitive gauge (ADE 2805 probe + 4810 module) output filter: not in the paper; gauging
+# modules of that class offer ~100 Hz ... 5 kHz (Queensgate NanoSensor: 50/500/5000 Hz); the
+# paper's "0.3 nm at 1 kHz" is a noise specification. 5 kHz, 2-pole Butterworth (notes item 5).
+GAUGE_BANDWIDTH_HZ = 5000.0
+GAUGE_FILTER_ORDER = 2
+# Floor vibration: table-top acceleration PSD, (m/s^2)^2/Hz, white to the Nyquist frequency, per
+# axis. A VC-C floor (12.5 um/s in 1/3-octave bands, Gordon/Ungar, IEST-RP-CC012) through a
+# pneumatic optical table with a transmissibility plateau of ~0.01 above tens of Hz (estimate,
+# notes item 9; range 1e-12 ... 1e-9).
+FLOOR_ACCEL_PSD_M2_S4_HZ = 3e-11
 
 # --- capacitance gauges and ADC (paper Sec. 2-3) -----------------------------
 SENSOR_UM_PER_V = 5.0

@@ -14,8 +14,16 @@ LSB_V = 20.0 / 2 ** 16
 
 
 def quiet(**kw):
-    """Default electronics with both noise sources off."""
-    return ElectronicsConfig(dac_noise=False, sensor_noise=False, **kw)
+    """Default converters and amplifier clipping, without noise, delay or analogue filters.
+
+    (Stage v2 added a one-sample computation delay, amplifier and gauge
+    bandwidths and amplifier noise to the defaults; they have their own tests
+    below, and these exact quantisation/saturation checks need them off.)
+    """
+    base = dict(dac_noise=False, sensor_noise=False, amplifier_noise=False, computation_delay_samples=0,
+                amplifier_bandwidth_Hz=None, gauge_bandwidth_Hz=None)
+    base.update(kw)
+    return ElectronicsConfig(**base)
 
 
 # --- exact linear chain --------------------------------------------------------
@@ -79,7 +87,8 @@ def test_dac_quantization():
 
 def test_dac_noise_std_and_independence():
     sigma = 1e-3
-    cfg = ElectronicsConfig.ideal(dac_noise=True, dac_noise_V=sigma)
+    # the white part alone (the flicker part: test_dac_noise_spectrum_is_white_with_flicker_corner)
+    cfg = ElectronicsConfig.ideal(dac_noise=True, dac_noise_V=sigma, dac_flicker_corner_Hz=None)
     chain = ActuatorChain(cfg, PiezoConfig.linear(), seed=5)
     n = 100_000
     out = chain.run(np.full((n, 3), 2.0))
@@ -148,7 +157,11 @@ def test_sensor_noise_with_adc_is_quantised():
     r = sensor.run(np.zeros((4000, 3)))
     codes = r.reading_V / LSB_V
     assert_array_equal(codes, np.round(codes))
-    assert set(np.unique(codes)) <= {-1.0, 0.0, 1.0}   # 0.42 nm noise vs 1.53 nm LSB
+    # 0.71 nm per sample (9.5 pm/sqrt(Hz) over the 5 kHz gauge filter's 5.6 kHz noise bandwidth)
+    # vs a 1.53 nm LSB: |code| <= 2 is > 4.8 sigma
+    assert set(np.unique(codes)) <= {-2.0, -1.0, 0.0, 1.0, 2.0}
+    assert_allclose(ElectronicsConfig().sensor_noise_std_nm, 0.3 * np.sqrt(5000 * (np.pi / 4) / np.sin(np.pi / 4)
+                                                                           / 1000), rtol=1e-12)
 
 
 # --- determinism, seeds, step == run -------------------------------------------
@@ -288,7 +301,7 @@ def test_bench_sensor_step(benchmark):
 # --- shaped DAC noise and a DAC spanning the command range (nanosim.stage bench settings) -----
 def test_shaped_dac_noise_keeps_rms_and_rolls_off_two_poles():
     from scipy.signal import welch
-    e = ElectronicsConfig.ideal(dac_noise=True, dac_noise_V=1e-3, dac_noise_corner_Hz=10.0)
+    e = ElectronicsConfig.ideal(dac_noise=True, dac_noise_V=1e-3, dac_noise_corner_Hz=10.0, dac_flicker_corner_Hz=None)
     n = ActuatorChain(e, PiezoConfig.linear(), seed=5).run(np.zeros((400_000, 3))).u_dac_V
     np.testing.assert_allclose(n.std(axis=0), 1e-3, rtol=0.06)
     f, p = welch(n[:, 0], fs=4000.0, nperseg=8192)
@@ -314,3 +327,87 @@ def test_dac_spanning_command_range_has_finer_lsb_and_exact_ends():
     np.testing.assert_allclose(s.u_dac_V[0, 0], -1.0, atol=1e-15)
     assert abs(s.u_dac_V[0, 1] - 1.0) <= e.dac_lsb_V / 2
     assert s.saturated[0].tolist() == [False, False, True]
+
+
+# --- the bench loop of stage v2: delay, amplifier bandwidth, gauge filter, noise spectra --------
+
+def test_computation_delay_shifts_the_command_by_whole_samples():
+    u = np.random.default_rng(4).uniform(0, 3, (200, 3))
+    for d in (0, 1, 3):
+        a = ActuatorChain(quiet(computation_delay_samples=d, dac_quantization=False), PiezoConfig.linear())
+        b = ActuatorChain(quiet(computation_delay_samples=d, dac_quantization=False), PiezoConfig.linear())
+        r = a.run(u).v_free_V
+        s = np.array([b.step(x).v_free_V for x in u])
+        assert_array_equal(r, s)
+        assert_array_equal(r[:d], 0.0)
+        assert_allclose(r[d:], 20.0 * u[:len(u) - d], rtol=1e-15)
+
+
+def test_amplifier_lag_period_means_match_the_first_order_step_response():
+    """Unit step into tau v' = u - v: mean over period k is 1 - (tau/T)(1 - a) a^k, a = exp(-T/tau)."""
+    fa, T = 10e3, 1 / 4000
+    tau, a = 1 / (2 * np.pi * fa), np.exp(-T / (1 / (2 * np.pi * fa)))
+    cfg = quiet(amplifier_bandwidth_Hz=fa, dac_quantization=False, saturation=False)
+    v = ActuatorChain(cfg, PiezoConfig.linear()).run(np.full((6, 3), 1.0)).v_piezo_V[:, 0] / 20.0
+    k = np.arange(6)
+    assert_allclose(v, 1 - (tau / T) * (1 - a) * a ** k, rtol=1e-12)
+    # a slow sine lags by tau (16 us at 10 kHz): phase at 50 Hz = -2 pi 50 tau within 1 %
+    t = np.arange(8000) / 4000
+    u = 1 + 0.1 * np.sin(2 * np.pi * 50 * t)
+    y = ActuatorChain(cfg, PiezoConfig.linear()).run(np.repeat(u[:, None], 3, 1)).v_piezo_V[:, 0] / 20
+    ref = np.exp(-2j * np.pi * 50 * t)
+    ph = np.angle(np.sum((y - 1) * ref) / np.sum((u - 1) * ref))
+    # the period mean of a held sample also lags by T/2 relative to the sample itself
+    assert_allclose(-ph, 2 * np.pi * 50 * (tau + 0.0), rtol=0.02, atol=2 * np.pi * 50 * 0.5e-6)
+
+
+@pytest.mark.parametrize("fc, mag_tol, deg_tol", [(5000.0, 0.002, 1.0), (1000.0, 0.04, 6.0)])
+def test_gauge_filter_matches_the_butterworth_response(fc, mag_tol, deg_tol):
+    """Sampled sines through the gauge: gain and phase of the continuous 2-pole Butterworth at 100-740 Hz."""
+    from scipy.signal import butter, freqs
+    cfg = quiet(gauge_bandwidth_Hz=fc, adc_quantization=False, sensor_clip=False)
+    t = np.arange(16000) / 4000
+    b, a = butter(2, 2 * np.pi * fc, analog=True)
+    for f in (100.0, 175.0, 460.0, 500.0, 740.0):
+        d = np.sin(2 * np.pi * f * t)
+        y = SensorChain(cfg).run(np.repeat(d[:, None], 3, 1)).reading_um[4000:, 0]
+        ref = np.exp(-2j * np.pi * f * t[4000:])
+        h_meas = np.sum(y * ref) / np.sum(d[4000:] * ref)
+        h = freqs(b, a, [2 * np.pi * f])[1][0]
+        tol_m, tol_d = (1e-3, 0.05) if f == 500.0 else (mag_tol, deg_tol)   # prewarped: exact at 500 Hz
+        assert_allclose(abs(h_meas), abs(h), rtol=tol_m)
+        assert_allclose(np.angle(h_meas), np.angle(h), atol=np.deg2rad(tol_d))
+    # starts at steady state: a constant reads as itself
+    assert_allclose(SensorChain(cfg).run(np.full((50, 3), 7.0)).reading_um, 7.0, rtol=1e-12)
+
+
+def test_dac_noise_spectrum_is_white_with_flicker_corner():
+    """PSD = e_n^2 (1 + f_c / f): +10.4 dB at 1 Hz and +0.4 dB at 100 Hz over the white level, f_c = 10 Hz."""
+    from scipy.signal import welch
+    e = ElectronicsConfig.ideal(dac_noise=True, dac_noise_V=1e-4, dac_flicker_corner_Hz=10.0)
+    n = ActuatorChain(e, PiezoConfig.linear(), seed=3).run(np.zeros((1_600_000, 3))).u_dac_V
+    f, p = welch(n, fs=4000.0, nperseg=2 ** 16, axis=0)
+    p = p.mean(axis=1)
+    white = (1e-4) ** 2 / 2000.0
+    for fq, expect in ((1.0, 11.0), (100.0, 1.1), (1000.0, 1.01)):
+        band = (f > 0.8 * fq) & (f < 1.25 * fq)
+        assert_allclose(p[band].mean() / white, expect, rtol=0.25)
+
+
+def test_amplifier_noise_std_and_seed_stream():
+    e = ElectronicsConfig.ideal(amplifier_noise=True, amplifier_noise_V=2e-5)
+    a = ActuatorChain(e, PiezoConfig.linear(), seed=1).run(np.zeros((100_000, 3)))
+    assert_allclose(a.v_piezo_V.std(axis=0) / 20.0, 2e-5, rtol=0.015)
+    assert_array_equal(a.u_dac_V, 0.0)                      # input-referred, added after the DAC code
+    d = ActuatorChain(ElectronicsConfig.ideal(dac_noise=True, dac_noise_V=2e-5, dac_flicker_corner_Hz=None),
+                      PiezoConfig.linear(), seed=1).run(np.zeros((1000, 3)))
+    assert np.abs(np.corrcoef(d.v_piezo_V[:, 0], a.v_piezo_V[:1000, 0])[0, 1]) < 0.1
+
+
+def test_default_bench_chain_step_equals_run_bit_for_bit():
+    u = np.random.default_rng(9).uniform(0, 2, size=(3000, 3))
+    a, b = ActuatorChain(seed=4), ActuatorChain(seed=4)
+    assert_array_equal(a.run(u).v_free_V, np.array([b.step(x).v_free_V for x in u]))
+    d = np.random.default_rng(10).normal(size=(3000, 3))
+    s1, s2 = SensorChain(seed=4), SensorChain(seed=4)
+    assert_array_equal(s1.run(d).reading_V, np.array([s2.step(x).reading_V for x in d]))

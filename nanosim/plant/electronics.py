@@ -2,37 +2,51 @@
 
 Actuator side (per channel, vectorised over the 3 actuators)::
 
-    u (controller V) -> DAC: 16-bit quantisation over +/-10 V, + white Gaussian noise
-      -> amplifier: clip to the command range [-1, 7.5] V (flag), x20 -> v_piezo (V)
-      -> piezo (nanosim.piezo): PI hysteresis -> Kelvin-Voigt creep -> v_free (V)
+    u (controller V) -> computation delay (whole samples)
+      -> DAC: 16-bit quantisation, + DAC noise (white + flicker) + amplifier noise (input-referred)
+      -> amplifier: clip to the command range [-1, 7.5] V (flag), x20, first-order small-signal
+         bandwidth into the piezo capacitance -> v_piezo (V, mean over the sample period)
+      -> piezo (nanosim.plant.piezo): PI hysteresis -> log creep -> v_free (V)
 
 The mechanics applies the tendon force ``F = PIEZO_FORCE_PER_PIEZO_V * v_free``.
 
 Sensor side (per capacitance probe)::
 
-    displacement (um) -> + gauge noise -> clip to +/-50 um (flag)
-      -> 5 um/V -> 16-bit ADC over +/-10 V -> reading (sensor V)
+    displacement (um) -> gauge output filter (Butterworth, first-order hold) -> + gauge noise
+      -> clip to +/-50 um (flag) -> 5 um/V -> 16-bit ADC over +/-10 V -> reading (sensor V)
 
-Gauge noise. The datasheet gives 0.3 nm rms in a 1 kHz bandwidth. It is
-modelled as white noise with the matching one-sided density
-``0.3 nm / sqrt(1000 Hz) = 9.5 pm/sqrt(Hz)``, integrated over the band
-``sensor_noise_band_Hz``; the per-sample standard deviation is
-``0.3 nm * sqrt(band / 1000 Hz)``. The default band is the Nyquist band of the
-4 kHz loop (2 kHz), i.e. 0.424 nm per sample: the gauge is assumed to have an
-analogue bandwidth above 2 kHz, so its noise aliases into the full sampled
-band. Set ``sensor_noise_band_Hz=1000`` to get 0.3 nm per sample (a gauge
-limited to 1 kHz). Either way it is below the ADC's quantisation noise
-(1 LSB = 1.53 nm, 0.44 nm rms).
+Every default is a bench value with its source in :mod:`nanosim.constants`
+(computation delay, amplifier bandwidth and noise, gauge bandwidth and noise,
+DAC noise). Noise spectra, each with a physical basis:
+
+- DAC: the standard electronic-noise spectrum, white with a flicker corner,
+  one-sided PSD ``e_n**2 (1 + f_c / f)``: white ``dac_noise_V`` per sample
+  (``e_n = dac_noise_V / sqrt(fs / 2)``) plus 1/f noise below
+  ``dac_flicker_corner_Hz`` (realized by
+  :class:`~nanosim.plant.filters.FlickerShaper` from 0.01 Hz up). Its level is
+  the one noise level fitted to the paper: the open-loop probe sigma at rest,
+  11.4 nm, which the paper attributes to the DAC's electrical noise ("this
+  high frequency noise will vibrate the stage", Sec. 5).
+- Amplifier: white, referred to its input (``amplifier_noise_V`` per sample).
+- Gauge: white ``0.3 nm / sqrt(1 kHz) = 9.5 pm/sqrt(Hz)`` (paper: 0.3 nm at
+  1 kHz). The noise leaves the gauge through its output filter and the ADC
+  samples it, so the per-sample variance is the density squared times the
+  filter's equivalent noise bandwidth (aliased; white from sample to sample is
+  exact for a filter above the Nyquist frequency). ``sensor_noise_band_Hz``
+  overrides that band.
+- ADC quantisation (1 LSB = 1.53 nm, 0.44 nm rms) follows from the converter.
+
+Floor vibration is a mechanical input (:mod:`nanosim.plant.floor`).
 
 Every effect is switchable; with everything off ``v_free_V == 20 * u`` and
 ``reading_um == displacement_um`` exactly.
 
-Random streams: each chain draws from its own ``numpy.random.Generator``,
-seeded from a child of ``numpy.random.SeedSequence(seed)`` (actuator: child 0,
-sensor: child 1), so giving both chains the same master seed yields
-independent streams. Normal deviates are drawn in fixed blocks, so ``run`` and
-repeated ``step`` calls produce bit-identical outputs, and ``reset`` replays
-the same noise.
+Random streams: each noise draws from its own ``numpy.random.Generator``,
+seeded from a child of ``numpy.random.SeedSequence(seed)`` (DAC white: child 0,
+gauge: child 1, DAC flicker: child 2, amplifier: child 3; the floor uses 4), so
+giving both chains the same master seed yields independent streams. Normal
+deviates are drawn in fixed blocks, so ``run`` and repeated ``step`` calls
+produce bit-identical outputs, and ``reset`` replays the same noise.
 """
 from __future__ import annotations
 
@@ -45,6 +59,8 @@ from scipy.signal import lfilter
 
 from nanosim import constants as C
 from nanosim.validation import as_finite_array
+from nanosim.plant.noise import NormalStream, child_seed
+from nanosim.plant.filters import AmplifierLag, DelayLine, FlickerShaper, SampledFilter, butterworth_lowpass, enbw_hz
 from nanosim.plant.piezo import PiezoConfig, PiezoModel
 
 __all__ = [
@@ -57,9 +73,11 @@ __all__ = [
     "child_seed",
 ]
 
-_NOISE_BLOCK = 4096
 _ACTUATOR_STREAM = 0
 _SENSOR_STREAM = 1
+_FLICKER_STREAM = 2
+_AMPLIFIER_STREAM = 3
+_FLICKER_F_MIN_HZ = 0.01          # lowest pole of the flicker shaper (records up to ~100 s)
 
 
 @dataclass(frozen=True)
@@ -70,6 +88,9 @@ class ElectronicsConfig:
     ----------
     sample_rate_Hz : float
         Controller / acquisition sample rate (4 kHz).
+    computation_delay_samples : int
+        Whole samples between the controller's output ``u_k`` and the DAC
+        update (0: ``u_k`` acts from the sample instant at which it is computed).
     dac_quantization : bool
         Quantise the command to ``dac_bits`` over ``dac_center_V +/- dac_full_scale_V``.
     dac_bits : int
@@ -82,15 +103,23 @@ class ElectronicsConfig:
     dac_noise : bool
         Add white Gaussian noise to the DAC output.
     dac_noise_V : float
-        Standard deviation of the DAC noise per sample, controller volts.
-        Default 1 mV; calibrate so the open-loop probe std at rest is 11.4 nm.
+        Standard deviation of the white DAC noise per sample, controller volts.
     dac_noise_corner_Hz : float or None
-        ``None``: white noise. Otherwise the noise passes a two-pole low-pass
-        ``b0 / (1 - a z^-1)^2``, ``a = exp(-2 pi fc / fs)``, scaled so its rms is
-        still ``dac_noise_V``: DAC and voltage-reference noise is dominated by
-        low-frequency (1/f, drift) components, and the amplifier rolls off.
+        ``None``: the white part is white. Otherwise it passes a two-pole
+        low-pass ``b0 / (1 - a z^-1)^2``, ``a = exp(-2 pi fc / fs)``, scaled so
+        its rms is still ``dac_noise_V`` (the stage-v1 DAC noise: 1.39 mV, 5 Hz).
+    dac_flicker_corner_Hz : float or None
+        1/f corner of the DAC noise: below it the flicker part exceeds the
+        white part (``None`` or 0: white only).
+    amplifier_noise : bool
+        Add the amplifier's white noise (input-referred).
+    amplifier_noise_V : float
+        Its standard deviation per sample, controller volts.
     amplifier_gain : float
         Piezo volts per controller volt (20).
+    amplifier_bandwidth_Hz : float or None
+        Small-signal -3 dB bandwidth of the amplifier driving the piezo
+        capacitance (first order); ``None``: instantaneous.
     saturation : bool
         Clip the command to ``command_range_V`` before the gain.
     command_range_V : tuple of float
@@ -101,7 +130,11 @@ class ElectronicsConfig:
         Gauge noise, nm rms in a 1 kHz bandwidth (0.3 nm).
     sensor_noise_band_Hz : float or None
         Equivalent noise bandwidth of the sampled gauge noise; ``None`` means
-        the Nyquist band ``sample_rate_Hz / 2``.
+        the gauge filter's (or, without one, the Nyquist band ``sample_rate_Hz / 2``).
+    gauge_bandwidth_Hz : float or None
+        -3 dB bandwidth of the gauge's output filter; ``None``: no filter.
+    gauge_filter_order : int
+        Butterworth order of that filter (1 or 2).
     sensor_clip : bool
         Clip the displacement to ``+/-sensor_range_um``.
     sensor_range_um : float
@@ -117,19 +150,26 @@ class ElectronicsConfig:
     """
 
     sample_rate_Hz: float = C.CONTROL_RATE_HZ
+    computation_delay_samples: int = C.COMPUTATION_DELAY_SAMPLES
     dac_quantization: bool = True
     dac_bits: int = 16
     dac_full_scale_V: float = 10.0
     dac_center_V: float = 0.0
     dac_noise: bool = True
-    dac_noise_V: float = 1e-3
+    dac_noise_V: float = C.DAC_WHITE_NOISE_V
     dac_noise_corner_Hz: float | None = None
+    dac_flicker_corner_Hz: float | None = C.DAC_FLICKER_CORNER_HZ
+    amplifier_noise: bool = True
+    amplifier_noise_V: float = C.AMPLIFIER_NOISE_V
     amplifier_gain: float = C.AMPLIFIER_GAIN
+    amplifier_bandwidth_Hz: float | None = C.AMPLIFIER_BANDWIDTH_HZ
     saturation: bool = True
     command_range_V: tuple = C.COMMAND_RANGE_V
     sensor_noise: bool = True
     sensor_noise_nm_rms_1kHz: float = C.SENSOR_NOISE_NM_RMS_1KHZ
     sensor_noise_band_Hz: float | None = None
+    gauge_bandwidth_Hz: float | None = C.GAUGE_BANDWIDTH_HZ
+    gauge_filter_order: int = C.GAUGE_FILTER_ORDER
     sensor_clip: bool = True
     sensor_range_um: float = C.SENSOR_RANGE_UM
     sensor_um_per_V: float = C.SENSOR_UM_PER_V
@@ -147,7 +187,19 @@ class ElectronicsConfig:
         for name in ("sample_rate_Hz", "dac_full_scale_V", "amplifier_gain", "sensor_range_um",
                      "sensor_um_per_V", "adc_full_scale_V"):
             positive(name)
-        for name in ("dac_noise_V", "sensor_noise_nm_rms_1kHz"):
+        fc = self.dac_flicker_corner_Hz
+        if fc is not None and (not np.isfinite(float(fc)) or float(fc) < 0):
+            raise ValueError(f"dac_flicker_corner_Hz: expected None or a finite value >= 0, got {fc!r}")
+        for name in ("amplifier_bandwidth_Hz", "gauge_bandwidth_Hz"):
+            if getattr(self, name) is not None:
+                positive(name)
+        d = self.computation_delay_samples
+        if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or not 0 <= d <= 100:
+            raise ValueError(f"computation_delay_samples: expected an integer in 0..100, got {d!r}")
+        object.__setattr__(self, "computation_delay_samples", int(d))
+        if self.gauge_filter_order not in (1, 2):
+            raise ValueError(f"gauge_filter_order: expected 1 or 2, got {self.gauge_filter_order!r}")
+        for name in ("dac_noise_V", "sensor_noise_nm_rms_1kHz", "amplifier_noise_V"):
             x = float(getattr(self, name))
             if not np.isfinite(x) or x < 0:
                 raise ValueError(f"{name}: expected a finite value >= 0, got {getattr(self, name)}")
@@ -167,8 +219,9 @@ class ElectronicsConfig:
     @classmethod
     def ideal(cls, **overrides) -> "ElectronicsConfig":
         """All effects off (exact gain-only chain); keyword overrides allowed."""
-        kw = dict(dac_quantization=False, dac_noise=False, saturation=False,
-                  sensor_noise=False, sensor_clip=False, adc_quantization=False)
+        kw = dict(dac_quantization=False, dac_noise=False, saturation=False, amplifier_noise=False,
+                  sensor_noise=False, sensor_clip=False, adc_quantization=False, computation_delay_samples=0,
+                  amplifier_bandwidth_Hz=None, gauge_bandwidth_Hz=None)
         kw.update(overrides)
         return cls(**kw)
 
@@ -176,6 +229,13 @@ class ElectronicsConfig:
     def dt_s(self) -> float:
         """Sample period, seconds."""
         return 1.0 / self.sample_rate_Hz
+
+    @property
+    def dac_flicker_V_per_rtHz(self) -> float:
+        """Flicker density of the DAC noise at 1 Hz, V/sqrt(Hz): ``e_n sqrt(f_c)`` (0 without flicker or noise)."""
+        if not self.dac_noise or not self.dac_flicker_corner_Hz:
+            return 0.0
+        return self.dac_noise_V / math.sqrt(self.sample_rate_Hz / 2.0) * math.sqrt(self.dac_flicker_corner_Hz)
 
     @property
     def dac_lsb_V(self) -> float:
@@ -188,10 +248,18 @@ class ElectronicsConfig:
         return 2.0 * self.adc_full_scale_V / 2 ** self.adc_bits
 
     @property
+    def sensor_noise_band_effective_Hz(self) -> float:
+        """Band of the sampled gauge noise: the override, the gauge filter's ENBW, or Nyquist."""
+        if self.sensor_noise_band_Hz is not None:
+            return self.sensor_noise_band_Hz
+        if self.gauge_bandwidth_Hz is not None:
+            return enbw_hz(self.gauge_bandwidth_Hz, self.gauge_filter_order)
+        return self.sample_rate_Hz / 2.0
+
+    @property
     def sensor_noise_std_nm(self) -> float:
         """Per-sample gauge noise std, nm: ``rms_1kHz * sqrt(band / 1 kHz)``."""
-        band = self.sample_rate_Hz / 2.0 if self.sensor_noise_band_Hz is None else self.sensor_noise_band_Hz
-        return self.sensor_noise_nm_rms_1kHz * float(np.sqrt(band / 1000.0))
+        return self.sensor_noise_nm_rms_1kHz * float(np.sqrt(self.sensor_noise_band_effective_Hz / 1000.0))
 
 
 class ActuatorSample(NamedTuple):
@@ -248,19 +316,6 @@ def quantize(x: np.ndarray, bits: int, full_scale: float) -> tuple[np.ndarray, n
     return code * lsb, overflow
 
 
-def child_seed(seed, stream: int) -> np.random.SeedSequence:
-    """Seed sequence for one stochastic element derived from a master seed.
-
-    ``seed`` may be an int, ``None`` (fresh OS entropy) or a
-    ``numpy.random.SeedSequence`` (used as is, ignoring ``stream``).
-    """
-    if isinstance(seed, np.random.SeedSequence):
-        return seed
-    if seed is not None and (not isinstance(seed, (int, np.integer)) or seed < 0):
-        raise ValueError(f"seed: expected a non-negative int, None or SeedSequence, got {seed!r}")
-    return np.random.SeedSequence(seed).spawn(stream + 1)[stream]
-
-
 def _fast_vector(name: str, value, n: int) -> np.ndarray:
     """``as_finite_array(name, value, shape=(n,))`` with a fast path for good input."""
     try:
@@ -270,42 +325,6 @@ def _fast_vector(name: str, value, n: int) -> np.ndarray:
     if arr is None or arr.shape != (n,) or not math.isfinite(arr.sum()):
         arr = as_finite_array(name, value, shape=(n,))   # raises on bad input
     return arr
-
-
-class _NormalStream:
-    """Standard normal deviates of width ``n`` drawn in fixed blocks (step == run)."""
-
-    def __init__(self, seedseq: np.random.SeedSequence, width: int, block: int = _NOISE_BLOCK):
-        self._seedseq = seedseq
-        self._width = width
-        self._block = block
-        self.reset()
-
-    def reset(self) -> None:
-        self._rng = np.random.default_rng(self._seedseq)
-        self._buf = self._rng.standard_normal((self._block, self._width))
-        self._i = 0
-
-    def take1(self) -> np.ndarray:
-        if self._i == self._block:
-            self._buf = self._rng.standard_normal((self._block, self._width))
-            self._i = 0
-        row = self._buf[self._i]
-        self._i += 1
-        return row
-
-    def take(self, n: int) -> np.ndarray:
-        out = np.empty((n, self._width))
-        filled = 0
-        while filled < n:
-            if self._i == self._block:
-                self._buf = self._rng.standard_normal((self._block, self._width))
-                self._i = 0
-            m = min(n - filled, self._block - self._i)
-            out[filled:filled + m] = self._buf[self._i:self._i + m]
-            self._i += m
-            filled += m
-        return out
 
 
 class ActuatorChain:
@@ -337,7 +356,7 @@ class ActuatorChain:
         e = self.electronics
         self.dt_s = e.dt_s
         self.piezo = PiezoModel(self.piezo_config, self.dt_s, self.n_channels)
-        self._noise = _NormalStream(child_seed(seed, _ACTUATOR_STREAM), self.n_channels)
+        self._noise = NormalStream(child_seed(seed, _ACTUATOR_STREAM), self.n_channels)
         self._gain = e.amplifier_gain
         self._lo, self._hi = e.command_range_V
         self._sigma = e.dac_noise_V if e.dac_noise else 0.0
@@ -348,6 +367,16 @@ class ActuatorChain:
         self._ar_b0 = (1.0 - a * a) * math.sqrt((1.0 - a * a) / (1.0 + a * a)) if a else 1.0
         self._ar_a1, self._ar_a2 = -2.0 * a, a * a
         self._ar_state = np.zeros((2, self.n_channels))
+        flick = e.dac_flicker_V_per_rtHz
+        self._flicker = (FlickerShaper(flick, _FLICKER_F_MIN_HZ, e.sample_rate_Hz, self.n_channels)
+                         if flick > 0 else None)
+        self._flicker_noise = (NormalStream(child_seed(seed, _FLICKER_STREAM), self.n_channels)
+                               if self._flicker is not None else None)
+        self._sigma_amp = e.amplifier_noise_V if e.amplifier_noise else 0.0
+        self._amp_noise = (NormalStream(child_seed(seed, _AMPLIFIER_STREAM), self.n_channels)
+                           if self._sigma_amp > 0 else None)
+        self._delay = DelayLine(e.computation_delay_samples, self.n_channels)
+        self._lag = AmplifierLag(e.amplifier_bandwidth_Hz, self.dt_s, self.n_channels)
         self._quant = e.dac_quantization
         if self._quant:
             self._lsb = e.dac_lsb_V
@@ -358,17 +387,52 @@ class ActuatorChain:
         # With saturation on and the command range well inside the DAC range, a
         # clipped DAC code always lands outside the command range (noise cannot
         # bring it back) and is flagged there: skip the separate DAC check.
-        margin = 20.0 * self._sigma
+        # flicker rms over 0.01 Hz ... fs/2 is sqrt(ln(2e5)) ~ 3.5 times its 1 Hz density
+        margin = 20.0 * (self._sigma + self._sigma_amp + 3.5 * flick)
         self._dac_clip_implied = (self._quant and self._center + self._code_lo * self._lsb + margin < self._lo
                                   and self._hi < self._center + self._code_hi * self._lsb - margin)
 
     def reset(self) -> None:
-        """Virgin piezo state, no creep history, DAC noise stream rewound."""
+        """Virgin piezo state, no creep history, empty delay line, noise streams rewound."""
         self.piezo.reset()
         self._noise.reset()
         self._ar_state = np.zeros((2, self.n_channels))
+        for part in (self._flicker, self._flicker_noise, self._amp_noise, self._delay, self._lag):
+            if part is not None:
+                part.reset()
 
-    def _electronics(self, u: np.ndarray, noise: np.ndarray | None):
+    def _noise_step(self) -> np.ndarray | None:
+        """The additive DAC noise of one sample (controller V), or None."""
+        total = None
+        if self._sigma > 0.0:
+            noise = self._noise.take1()
+            if self._ar:
+                # DF-II transposed, as scipy.signal.lfilter: step == run bit for bit
+                z = self._ar_state
+                y = self._ar_b0 * noise + z[0]
+                self._ar_state = np.stack([z[1] - self._ar_a1 * y, -self._ar_a2 * y])
+                noise = y
+            total = self._sigma * noise
+        if self._flicker is not None:
+            f = self._flicker.step(self._flicker_noise.take1())
+            total = f if total is None else total + f
+        return total
+
+    def _noise_run(self, n: int) -> np.ndarray | None:
+        total = None
+        if self._sigma > 0.0:
+            noise = self._noise.take(n)
+            if self._ar and n:
+                noise, zf = lfilter([self._ar_b0, 0.0, 0.0], [1.0, self._ar_a1, self._ar_a2], noise, axis=0,
+                                    zi=self._ar_state)
+                self._ar_state = zf
+            total = self._sigma * noise
+        if self._flicker is not None:
+            f = self._flicker.run(self._flicker_noise.take(n))
+            total = f if total is None else total + f
+        return total
+
+    def _electronics(self, u: np.ndarray, noise: np.ndarray | None, amp_noise: np.ndarray | None = None):
         # Same ufunc sequence for (3,) and (N, 3) inputs: step and run agree bit for bit.
         maximum, minimum = np.maximum, np.minimum
         if self._quant:
@@ -379,14 +443,15 @@ class ActuatorChain:
             code = code_c = None
             u_dac = u.copy()
         if noise is not None:
-            u_dac = u_dac + self._sigma * noise
+            u_dac = u_dac + noise
+        u_in = u_dac if amp_noise is None else u_dac + amp_noise       # amplifier noise, input-referred
         if self._sat:
-            u_cmd = minimum(maximum(u_dac, self._lo), self._hi)
-            sat = u_cmd != u_dac
+            u_cmd = minimum(maximum(u_in, self._lo), self._hi)
+            sat = u_cmd != u_in
             if code is not None and not self._dac_clip_implied:
                 sat |= code_c != code
         else:
-            u_cmd = u_dac
+            u_cmd = u_in
             sat = (code_c != code) if code is not None else np.zeros(u.shape, dtype=bool)
         return u_dac, self._gain * u_cmd, sat
 
@@ -404,15 +469,10 @@ class ActuatorChain:
             ``u_dac_V``, ``v_piezo_V``, ``v_free_V`` (shape ``(n_channels,)``) and
             ``saturated`` flags.
         """
-        u = _fast_vector("u_V", u_V, self.n_channels)
-        noise = self._noise.take1() if self._sigma > 0.0 else None
-        if noise is not None and self._ar:
-            # DF-II transposed, as scipy.signal.lfilter: step == run bit for bit
-            z = self._ar_state
-            y = self._ar_b0 * noise + z[0]
-            self._ar_state = np.stack([z[1] - self._ar_a1 * y, -self._ar_a2 * y])
-            noise = y
-        u_dac, v_piezo, sat = self._electronics(u, noise)
+        u = self._delay.step(_fast_vector("u_V", u_V, self.n_channels))
+        amp = self._sigma_amp * self._amp_noise.take1() if self._amp_noise is not None else None
+        u_dac, v_amp, sat = self._electronics(u, self._noise_step(), amp)
+        v_piezo = self._lag.step(v_amp)
         v_free = self.piezo._step(v_piezo)
         return ActuatorSample(u_dac, v_piezo, v_free, sat)
 
@@ -429,19 +489,19 @@ class ActuatorChain:
         ActuatorSample
             Fields of shape ``(N, n_channels)``.
         """
-        u = as_finite_array("u_V", u_V, shape=(None, self.n_channels))
-        noise = self._noise.take(u.shape[0]) if self._sigma > 0.0 else None
-        if noise is not None and self._ar and len(noise):
-            noise, zf = lfilter([self._ar_b0, 0.0, 0.0], [1.0, self._ar_a1, self._ar_a2], noise, axis=0,
-                                zi=self._ar_state)
-            self._ar_state = zf
-        u_dac, v_piezo, sat = self._electronics(u, noise)
+        u = self._delay.run(as_finite_array("u_V", u_V, shape=(None, self.n_channels)))
+        amp = self._sigma_amp * self._amp_noise.take(u.shape[0]) if self._amp_noise is not None else None
+        u_dac, v_amp, sat = self._electronics(u, self._noise_run(u.shape[0]), amp)
+        v_piezo = self._lag.run(v_amp)
         v_free = self.piezo._run(v_piezo)
         return ActuatorSample(u_dac, v_piezo, v_free, sat)
 
 
 class SensorChain:
-    """Stateless-but-seeded gauge -> ADC chain for ``n_channels`` probes.
+    """Gauge filter -> gauge noise -> ADC chain for ``n_channels`` probes.
+
+    The gauge's output filter (if configured) starts at steady state with the
+    first displacement it reads after construction or :meth:`reset`.
 
     Parameters
     ----------
@@ -457,8 +517,10 @@ class SensorChain:
         self.electronics = ElectronicsConfig() if electronics is None else electronics
         self.n_channels = int(n_channels)
         e = self.electronics
-        self._noise = _NormalStream(child_seed(seed, _SENSOR_STREAM), self.n_channels)
+        self._noise = NormalStream(child_seed(seed, _SENSOR_STREAM), self.n_channels)
         self._sigma_um = e.sensor_noise_std_nm * 1e-3 if e.sensor_noise else 0.0
+        self._filter = (SampledFilter(*butterworth_lowpass(e.gauge_bandwidth_Hz, e.gauge_filter_order), e.dt_s,
+                                      self.n_channels) if e.gauge_bandwidth_Hz is not None else None)
         self._range = e.sensor_range_um
         self._um_per_V = e.sensor_um_per_V
         if e.adc_quantization:
@@ -468,8 +530,10 @@ class SensorChain:
             self._code_hi = float(2 ** (e.adc_bits - 1) - 1)
 
     def reset(self) -> None:
-        """Rewind the gauge noise stream."""
+        """Rewind the gauge noise stream; the gauge filter restarts at steady state."""
         self._noise.reset()
+        if self._filter is not None:
+            self._filter.reset()
 
     def _convert(self, d: np.ndarray, noise: np.ndarray | None) -> SensorSample:
         if noise is not None:
@@ -501,6 +565,8 @@ class SensorChain:
             ``reading_V``, ``reading_um`` and ``clipped`` flags.
         """
         d = _fast_vector("displacement_um", displacement_um, self.n_channels)
+        if self._filter is not None:
+            d = self._filter.step(d)
         noise = self._noise.take1() if self._sigma_um > 0.0 else None
         return self._convert(d, noise)
 
@@ -513,5 +579,7 @@ class SensorChain:
             True probe displacements, micrometres.
         """
         d = as_finite_array("displacement_um", displacement_um, shape=(None, self.n_channels))
+        if self._filter is not None:
+            d = self._filter.run(d)
         noise = self._noise.take(d.shape[0]) if self._sigma_um > 0.0 else None
         return self._convert(d, noise)

@@ -1,0 +1,60 @@
+"""Seeded Gaussian noise streams shared by the signal chains and the floor-vibration input."""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["child_seed", "NormalStream", "NOISE_BLOCK"]
+
+NOISE_BLOCK = 4096
+
+
+def child_seed(seed, stream: int) -> np.random.SeedSequence:
+    """Seed sequence for one stochastic element derived from a master seed.
+
+    ``seed`` may be an int, ``None`` (fresh OS entropy) or a
+    ``numpy.random.SeedSequence`` (used as is, ignoring ``stream``).
+    """
+    if isinstance(seed, np.random.SeedSequence):
+        return seed
+    if seed is not None and (not isinstance(seed, (int, np.integer)) or seed < 0):
+        raise ValueError(f"seed: expected a non-negative int, None or SeedSequence, got {seed!r}")
+    return np.random.SeedSequence(seed).spawn(stream + 1)[stream]
+
+
+class NormalStream:
+    """Standard normal deviates of width ``n`` drawn in fixed blocks, so ``take1`` x N == ``take(N)`` bit for bit."""
+
+    def __init__(self, seedseq: np.random.SeedSequence, width: int, block: int = NOISE_BLOCK):
+        self._seedseq = seedseq
+        self._width = width
+        self._block = block
+        self.reset()
+
+    def reset(self) -> None:
+        """Rewind to the seed."""
+        self._rng = np.random.default_rng(self._seedseq)
+        self._buf = self._rng.standard_normal((self._block, self._width))
+        self._i = 0
+
+    def take1(self) -> np.ndarray:
+        """One row of ``width`` deviates."""
+        if self._i == self._block:
+            self._buf = self._rng.standard_normal((self._block, self._width))
+            self._i = 0
+        row = self._buf[self._i]
+        self._i += 1
+        return row
+
+    def take(self, n: int) -> np.ndarray:
+        """``n`` rows, the same numbers ``n`` calls of :meth:`take1` would give."""
+        out = np.empty((n, self._width))
+        filled = 0
+        while filled < n:
+            if self._i == self._block:
+                self._buf = self._rng.standard_normal((self._block, self._width))
+                self._i = 0
+            m = min(n - filled, self._block - self._i)
+            out[filled:filled + m] = self._buf[self._i:self._i + m]
+            self._i += m
+            filled += m
+        return out
