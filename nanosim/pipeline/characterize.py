@@ -16,6 +16,7 @@ from nanosim.experiments.registry import ExperimentContext
 from nanosim.fileio import save_figure, write_json
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import CharacterizeConfig
+from nanosim.plant.floor import floor_model
 from nanosim.plant.linearize import linearize
 from nanosim.plant.modes import modal_analysis
 from nanosim.plant.stage import Stage, StageConfig
@@ -40,7 +41,8 @@ def make_factory(twin: bool, mjcf=None, config: StageConfig | None = None):
         return lambda seed: Stage(seed=seed, config=config, model=model), base
     lin = linearize(Stage(config=StageConfig.ideal(), model=base.model))
     home = base.table_um.copy()
-    return lambda seed: TwinStage(lin, seed=seed, config=config, home_um=home), base
+    fm = floor_model(base.model, base.dt_s)
+    return lambda seed: TwinStage(lin, seed=seed, config=config, home_um=home, floor_model=fm), base
 
 
 def _run_in_threads(task, names, workers: int):

@@ -18,21 +18,26 @@ from mujoco import rollout
 from nanosim import constants as C
 from nanosim.validation import as_finite_array
 from nanosim.plant.electronics import ActuatorChain, ElectronicsConfig, SensorChain
+from nanosim.plant.floor import FloorConfig, FloorVibration, floor_model
 from nanosim.plant.mechanics import home_data
 from nanosim.plant.mjcf import custom_numeric, load_model, probe_layout
 from nanosim.plant.piezo import PiezoConfig
 
 
-# The bench electronics. 16-bit DAC spanning the command range [-1, 7.5] V
-# (LSB 0.13 mV). DAC noise (controller volts rms) is low-frequency (two poles
-# at 5 Hz: 1/f and reference drift dominate DAC noise); its level is
-# calibrated so the open-loop probe sigma at rest is 11.4 nm (paper Sec. 5),
-# see tests/test_stage.py.
-DAC_NOISE_V = 1.39e-3
-DAC_NOISE_CORNER_HZ = 5.0
-STAGE_ELECTRONICS = ElectronicsConfig(dac_full_scale_V=(C.COMMAND_RANGE_V[1] - C.COMMAND_RANGE_V[0]) / 2,
-                                      dac_center_V=(C.COMMAND_RANGE_V[1] + C.COMMAND_RANGE_V[0]) / 2,
-                                      dac_noise_V=DAC_NOISE_V, dac_noise_corner_Hz=DAC_NOISE_CORNER_HZ)
+# The bench electronics: every default of ElectronicsConfig (sourced values in
+# nanosim.constants), with the 16-bit DAC spanning the command range [-1, 7.5] V
+# (LSB 0.13 mV). The DAC's flicker-noise level is the one noise level fitted to
+# the paper (open-loop probe sigma at rest 11.4 nm, Sec. 5), see tests/test_stage.py.
+_DAC_SPAN = dict(dac_full_scale_V=(C.COMMAND_RANGE_V[1] - C.COMMAND_RANGE_V[0]) / 2,
+                 dac_center_V=(C.COMMAND_RANGE_V[1] + C.COMMAND_RANGE_V[0]) / 2)
+STAGE_ELECTRONICS = ElectronicsConfig(**_DAC_SPAN)
+# Stage v1 (before issue 12): no computation delay, amplifier or gauge bandwidth, no amplifier
+# noise; DAC noise 1.39 mV low-passed by two poles at 5 Hz (a level and corner calibrated to
+# the open- and closed-loop sigma). For comparisons and ablations.
+STAGE_ELECTRONICS_V1 = ElectronicsConfig(**_DAC_SPAN, computation_delay_samples=0, dac_noise_V=1.39e-3,
+                                         dac_noise_corner_Hz=5.0, dac_flicker_corner_Hz=None,
+                                         amplifier_noise=False, amplifier_bandwidth_Hz=None,
+                                         gauge_bandwidth_Hz=None)
 
 
 @dataclass(frozen=True)
@@ -41,11 +46,17 @@ class StageConfig:
 
     electronics: ElectronicsConfig = field(default_factory=lambda: STAGE_ELECTRONICS)
     piezo: PiezoConfig = field(default_factory=PiezoConfig)
+    floor: FloorConfig = field(default_factory=FloorConfig)
 
     @classmethod
     def ideal(cls) -> "StageConfig":
-        """Linear plant: no noise, quantization, saturation, hysteresis or creep."""
-        return cls(electronics=ElectronicsConfig.ideal(), piezo=PiezoConfig.linear())
+        """Linear plant: no noise, quantization, saturation, delay, filters, hysteresis, creep or floor."""
+        return cls(electronics=ElectronicsConfig.ideal(), piezo=PiezoConfig.linear(), floor=FloorConfig.off())
+
+    @classmethod
+    def v1(cls) -> "StageConfig":
+        """The stage-v1 electromechanics (issue 12's "before"): v1 electronics, v1 creep, no floor vibration."""
+        return cls(electronics=STAGE_ELECTRONICS_V1, piezo=PiezoConfig.calibrated_v1(), floor=FloorConfig.off())
 
 
 
@@ -55,9 +66,11 @@ class Trace:
     """A sampled record; row k holds the command applied over [t_k, t_k + T)
     and the reading at t_k + T.
 
-    t_s (N,) time at the end of each period, s; u_V (N, 3) controller command;
+    t_s (N,) time at the end of each period, s; u_V (N, 3) controller command
+    (it reaches the DAC ``computation_delay_samples`` periods later);
     piezo_V (N, 3) amplifier output; saturated (N, 3) command clipped;
-    table_um (N, 3) true probe-axis displacement (no noise); sensor_V (N, 3)
+    table_um (N, 3) true probe-axis displacement, floor vibration included
+    (no gauge noise or filter); sensor_V (N, 3)
     ADC reading in sensor volts; sensor_um (N, 3) the same in um;
     clipped (N, 3) gauge out of range.
     """
@@ -72,6 +85,7 @@ class Trace:
     clipped: np.ndarray
 
     def as_arrays(self) -> dict[str, np.ndarray]:
+        """The fields as a name -> array dict."""
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
@@ -101,12 +115,17 @@ class Stage:
                                                  C.PIEZO_FORCE_PER_PIEZO_V)[0])
         self.reset()
 
+    def variant(self, config: StageConfig, seed: int | None = None) -> "Stage":
+        """A fresh stage on the same mechanics with other electromechanics (and seed)."""
+        return Stage(seed=self.seed if seed is None else seed, config=config, model=self.model)
+
     # -- state -------------------------------------------------------------
     def reset(self) -> None:
         """Home keyframe, virgin piezo, noise streams rewound to the seed."""
         self.data = home_data(self.model)
         self.actuators = ActuatorChain(self.config.electronics, self.config.piezo, seed=self.seed)
         self.sensors = SensorChain(self.config.electronics, seed=self.seed)
+        self.floor = FloorVibration(floor_model(self.model, self.dt_s), self.config.floor, seed=self.seed)
         self.time_s = 0.0
         self.last_piezo_V = np.zeros(3)
         self.last_saturated = np.zeros(3, dtype=bool)
@@ -125,6 +144,8 @@ class Stage:
         mujoco.mj_step(self.model, self.data, self.substeps)
         self.time_s += self.dt_s
         self.table_um = self._probe_um()
+        if self.floor.active:
+            self.table_um = self.table_um + self.floor.step()
         sens = self.sensors.step(self.table_um)
         self.last_piezo_V = act.v_piezo_V
         self.last_saturated = act.saturated
@@ -138,6 +159,8 @@ class Stage:
         table = _rollout(self.model, [self.data], self.data, self._force_per_V * act.v_free_V[None],
                          self.substeps, self._probe_adr, self._probe_bias_m)[0]
         n = len(u)
+        if self.floor.active:
+            table = table + self.floor.run(n)
         t = self.time_s + self.dt_s * np.arange(1, n + 1)
         self.time_s = float(t[-1]) if n else self.time_s
         if n:
@@ -198,6 +221,8 @@ def run_open_loop_batch(u_batch, *, seeds, config: StageConfig | None = None, mj
     traces = []
     t = st0.dt_s * np.arange(1, u.shape[1] + 1)
     for st, ui, a, tb in zip(stages, u, acts, table):
+        if st.floor.active:
+            tb = tb + st.floor.run(len(ui))
         traces.append(_trace(t, ui, a, tb, st.sensors))
     return traces
 

@@ -5,6 +5,7 @@ import numpy as np
 
 from nanosim import constants as C
 from nanosim.plant.electronics import ActuatorChain, SensorChain
+from nanosim.plant.floor import FloorModel, FloorVibration
 from nanosim.plant.stage import StageConfig, Trace
 
 __all__ = ["TwinStage"]
@@ -16,12 +17,18 @@ class TwinStage:
     """The linear twin wrapped in the same electromechanics as :class:`Stage`.
 
     Same ``step``/``run``/``reset`` API: DAC, amplifier, piezo hysteresis and
-    creep, gauge noise and ADC act exactly as on the MuJoCo stage; only the
-    mechanics is the 4 kHz discrete linear twin.
+    creep, gauge and ADC act exactly as on the MuJoCo stage; only the
+    mechanics is the 4 kHz discrete linear twin. Floor vibration needs
+    ``floor_model`` (:func:`nanosim.plant.floor.floor_model` of the MuJoCo
+    model the twin came from); without it the twin has none.
     """
 
-    def __init__(self, twin, seed: int = 0, config: StageConfig | None = None, home_um=None, home_qpos=None):
+    def __init__(self, twin, seed: int = 0, config: StageConfig | None = None, home_um=None, home_qpos=None,
+                 floor_model: FloorModel | None = None):
         self.config = config or StageConfig()
+        self._floor_model = floor_model
+        self._twin = twin
+        self._home_qpos_arg = home_qpos
         self.seed = seed
         sysd = twin.sysd_V
         self._A, self._B, self._C, self._D = sysd.A, sysd.B, sysd.C, sysd.D
@@ -31,10 +38,17 @@ class TwinStage:
         self.dt_s = twin.dt_s
         self.reset()
 
+    def variant(self, config: StageConfig, seed: int | None = None) -> "TwinStage":
+        """A fresh twin stage on the same mechanics with other electromechanics (and seed)."""
+        return TwinStage(self._twin, seed=self.seed if seed is None else seed, config=config,
+                         home_um=self._home_um, home_qpos=self._home_qpos_arg, floor_model=self._floor_model)
+
     def reset(self) -> None:
         """Back to home with fresh electronics (same seed, same noise)."""
         self.actuators = ActuatorChain(self.config.electronics, self.config.piezo, seed=self.seed)
         self.sensors = SensorChain(self.config.electronics, seed=self.seed)
+        self.floor = (FloorVibration(self._floor_model, self.config.floor, seed=self.seed)
+                      if self._floor_model is not None else None)
         self._x = np.zeros(self._A.shape[0])
         self._v = np.zeros(3)
         self.time_s = 0.0
@@ -49,6 +63,8 @@ class TwinStage:
         self._v = v_eq
         self._x = self._A @ self._x + self._B @ v_eq
         self.table_um = self._home_um + UM_PER_V * (self._C @ self._x + self._D @ v_eq)
+        if self.floor is not None and self.floor.active:
+            self.table_um = self.table_um + self.floor.step()
         self.time_s += self.dt_s
         self.last_saturated = act.saturated
         self.last_piezo_V = act.v_piezo_V
