@@ -68,19 +68,34 @@ def _experiment_inputs(settings: IdentifySettings, seed_offset: int):
     return ex, cmds, n_settle
 
 
-def run_experiments(settings: IdentifySettings, model=None):
-    """Simulate the estimation and validation experiments (6 runs in parallel)."""
+def run_experiments(settings: IdentifySettings, model=None, config: StageConfig | None = None, runner=None):
+    """Simulate the estimation and validation experiments (6 runs in parallel).
+
+    ``config`` overrides the stage's electromechanics (default: every effect
+    on, or none with ``settings.ideal``); ``runner`` replaces
+    :func:`~nanosim.plant.stage.run_open_loop_batch` (same call:
+    ``runner(u_batch, seeds=..., config=..., model=...)``), e.g. to identify
+    the linear twin.
+    """
     ex_e, cmd_e, n0 = _experiment_inputs(settings, 1)
     ex_v, cmd_v, _ = _experiment_inputs(settings, 2)
-    cfg = StageConfig.ideal() if settings.ideal else StageConfig()
+    cfg = config if config is not None else (StageConfig.ideal() if settings.ideal else StageConfig())
     seeds = [settings.seed * 10 + k for k in range(6)]
-    traces = run_open_loop_batch(np.concatenate([cmd_e, cmd_v]), seeds=seeds, config=cfg, model=model)
+    traces = (runner or run_open_loop_batch)(np.concatenate([cmd_e, cmd_v]), seeds=seeds, config=cfg, model=model)
     return ex_e, ex_v, traces[:3], traces[3:], n0
 
 
 def _deviation(trace: Trace, n0: int, j: int, offset_V: float):
-    """Input and output deviations from the operating point (record after settling)."""
-    y = trace.sensor_V[n0:]
+    """Input and output deviations from the operating point (record after settling).
+
+    Pairs each command with the reading the controller had when it computed
+    it, as the bench's data gathering does: command ``u_k`` (computed at
+    ``t_k``) with the reading taken at ``t_k``, i.e. the trace's reading of
+    row ``k - 1``. (A trace row holds the reading at the *end* of its period;
+    pairing that with ``u_k`` would give the model one sample less delay than
+    the loop it is designed for.)
+    """
+    y = trace.sensor_V[n0 - 1:-1]
     baseline = trace.sensor_V[n0 - int(0.1 * C.CONTROL_RATE_HZ):n0].mean(axis=0)
     return trace.u_V[n0:, j] - offset_V, y - baseline
 
@@ -100,9 +115,13 @@ def assemble(columns) -> ct.StateSpace:
     return ct.ss(A, B, Cm, D, columns[0].dt_s)
 
 
-def identify_stage(settings: IdentifySettings = IdentifySettings(), model=None, progress=None) -> IdentifiedStage:
-    """Run the experiments on the simulated stage and identify the 3x3 model."""
-    ex_e, ex_v, tr_e, tr_v, n0 = run_experiments(settings, model)
+def identify_stage(settings: IdentifySettings = IdentifySettings(), model=None, progress=None,
+                   config: StageConfig | None = None, runner=None) -> IdentifiedStage:
+    """Run the experiments on the simulated stage and identify the 3x3 model.
+
+    ``config`` and ``runner``: see :func:`run_experiments`.
+    """
+    ex_e, ex_v, tr_e, tr_v, n0 = run_experiments(settings, model, config, runner)
     if progress:
         progress("experiments simulated")
     columns, est, val = [], [], []
