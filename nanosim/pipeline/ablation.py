@@ -1,0 +1,195 @@
+"""The paper's controller as a prediction, element by element (issue 12, item 9).
+
+Each row switches one element of the stage model (delay, amplifier, gauge,
+noise spectra, hysteresis, creep, identification quality, ...) and predicts
+the paper's closed-loop figures with the paper's own procedure
+(:meth:`~nanosim.pipeline.config.DesignConfig.paper`: 10-state model, single
+H-infinity loop, the paper's weights):
+
+- ``redesign=True`` (the prediction): identify that stage with the paper's
+  excitation, design the paper's controller on it, run the experiments on it;
+- ``redesign=False`` (attribution): keep the controller designed on the
+  all-on stage and change only the plant.
+
+Mechanics: the linear twin (MuJoCo's own linearization, residualized; the
+same electronics and piezo as the MuJoCo stage) by default, or MuJoCo.
+Nothing here is fitted: the rows only switch modelled elements on and off.
+
+``python tools/paper_design_ablation.py --out DIR`` writes ``ablation.json``
+and ``ablation.md``.
+"""
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from nanosim import constants as C
+from nanosim.design.controller import DiscreteController
+from nanosim.experiments.bandwidth import bandwidth
+from nanosim.experiments.contouring import contouring
+from nanosim.experiments.resolution import resolution
+from nanosim.experiments.sysid import IdentifySettings, identify_stage
+from nanosim.fileio import write_npz
+from nanosim.pipeline.config import DesignConfig
+from nanosim.pipeline.design import run_design
+from nanosim.pipeline.identify import save_model
+from nanosim.plant.floor import FloorConfig, floor_model
+from nanosim.plant.linearize import linearize
+from nanosim.plant.piezo import PiezoConfig
+from nanosim.plant.stage import Stage, StageConfig, Trace
+from nanosim.plant.twin import TwinStage
+
+__all__ = ["AblationRow", "ablation_rows", "PAPER_TARGETS", "run_row", "run_ablation", "markdown_table"]
+
+# Paper Sec. 5 (nanosim.paper holds them too; repeated here as the table's header).
+PAPER_TARGETS = {"settling_ms": 11.0, "sigma_closed_nm": 1.89, "contour_mean_nm_1000": 40.0, "bandwidth_S_hz": 32.0}
+
+
+@dataclass(frozen=True)
+class AblationRow:
+    """One stage variant: a name, what changed, and its :class:`StageConfig`."""
+
+    name: str
+    change: str
+    config: StageConfig
+    identify_ideal: bool = False          # identification quality: identify the noise-free linear stage
+
+
+def ablation_rows() -> list[AblationRow]:
+    """The v2 stage, then one element changed at a time, then the v1 stage."""
+    v2 = StageConfig()
+    e, p = v2.electronics, v2.piezo
+    rows = [
+        AblationRow("v2", "every element on (the prediction)", v2),
+        AblationRow("delay 0", "computation delay 0 samples (default 1)",
+                    replace(v2, electronics=replace(e, computation_delay_samples=0))),
+        AblationRow("delay 2", "computation delay 2 samples",
+                    replace(v2, electronics=replace(e, computation_delay_samples=2))),
+        AblationRow("no amplifier bandwidth", "amplifier instantaneous (default 10 kHz)",
+                    replace(v2, electronics=replace(e, amplifier_bandwidth_Hz=None))),
+        AblationRow("no gauge filter", "gauge without output filter (default 5 kHz 2-pole)",
+                    replace(v2, electronics=replace(e, gauge_bandwidth_Hz=None))),
+        AblationRow("gauge 1 kHz", "gauge filter 1 kHz 2-pole",
+                    replace(v2, electronics=replace(e, gauge_bandwidth_Hz=1000.0))),
+        AblationRow("v1 noise", "v1 noise: DAC 1.39 mV through 2 poles at 5 Hz, no flicker, amplifier or floor noise",
+                    replace(v2, electronics=replace(e, dac_noise_V=1.39e-3, dac_noise_corner_Hz=5.0,
+                                                    dac_flicker_corner_Hz=None, amplifier_noise=False),
+                            floor=FloorConfig.off())),
+        AblationRow("no floor", "no floor vibration", replace(v2, floor=FloorConfig.off())),
+        AblationRow("no noise", "no DAC, amplifier, gauge or floor noise (quantization kept)",
+                    replace(v2, electronics=replace(e, dac_noise=False, amplifier_noise=False, sensor_noise=False),
+                            floor=FloorConfig.off())),
+        AblationRow("no hysteresis", "piezo hysteresis off", replace(v2, piezo=replace(p, hysteresis=False))),
+        AblationRow("no creep", "piezo creep off", replace(v2, piezo=replace(p, creep=False))),
+        AblationRow("linear piezo", "hysteresis and creep off", replace(v2, piezo=PiezoConfig.linear())),
+        AblationRow("v1 creep", "creep of v1 (10 % at 1/29 s, 1 % at 1 s and 10 s)",
+                    replace(v2, piezo=PiezoConfig.calibrated_v1())),
+        AblationRow("ideal identification", "controller designed on the noise-free linear stage's model", v2,
+                    identify_ideal=True),
+        AblationRow("v1 stage", "v1 electronics, v1 creep, no floor (stage before issue 12)", StageConfig.v1()),
+    ]
+    return rows
+
+
+class _Plant:
+    """Mechanics shared by every row: the MuJoCo model, its twin and floor model."""
+
+    def __init__(self, twin: bool, mjcf=None):
+        self.base = Stage(config=StageConfig.ideal(), mjcf=mjcf)
+        self.model = self.base.model
+        self.twin = twin
+        self.lin = linearize(self.base) if twin else None
+        self.home = self.base.table_um.copy()
+        self.fm = floor_model(self.model, self.base.dt_s)
+
+    def factory(self, config: StageConfig):
+        if self.twin:
+            return lambda seed: TwinStage(self.lin, seed=seed, config=config, home_um=self.home, floor_model=self.fm)
+        return lambda seed: Stage(seed=seed, config=config, model=self.model)
+
+    def runner(self):
+        """``run_open_loop_batch`` replacement for identification on the twin."""
+        if not self.twin:
+            return None
+
+        def run(u_batch, *, seeds, config=None, model=None):
+            out = []
+            for s, u in zip(seeds, u_batch):
+                st = self.factory(config)(s)
+                tr = st.run(u)
+                out.append(Trace(t_s=tr.t_s, u_V=tr.u_V, piezo_V=tr.piezo_V, saturated=tr.saturated,
+                                 table_um=tr.table_um, sensor_V=tr.sensor_V, sensor_um=tr.sensor_um,
+                                 clipped=tr.clipped))
+            return out
+        return run
+
+
+def _design(plant: _Plant, row: AblationRow, seed: int, work: Path) -> Path:
+    cfg = StageConfig.ideal() if row.identify_ideal else row.config
+    res = identify_stage(IdentifySettings(seed=seed, ideal=row.identify_ideal), model=plant.model, config=cfg,
+                         runner=plant.runner())
+    npz = save_model(work / "model.npz", res)
+    tw = linearize(plant.base).sys_V
+    twin_npz = write_npz(work / "twin.npz", A=tw.A, B=tw.B, C=tw.C, D=tw.D)
+    run_design(npz, work, DesignConfig.paper(), twin=str(twin_npz))
+    return work / "controller.npz"
+
+
+def run_row(plant: _Plant, row: AblationRow, controller_npz, seed: int = 0) -> dict:
+    """Closed-loop figures of one row with one controller (the paper's Sec. 5 quantities)."""
+    ctrl = DiscreteController.from_npz(controller_npz, expected_dt=C.CONTROL_PERIOD_S)
+    fac = plant.factory(row.config)
+    t0 = time.perf_counter()
+    bw = bandwidth(fac, DiscreteController(ctrl.config), seed=seed)
+    res = resolution(fac, DiscreteController(ctrl.config), seed=seed, budget=False)
+    cont = contouring(fac, DiscreteController(ctrl.config), seed=seed, speeds_um_s=(1000,))[0]
+    return {"settling_ms": bw.settling_ms, "overshoot_percent": bw.overshoot_percent, "rise_ms": bw.rise_ms,
+            "bandwidth_S_hz": bw.bandwidth_S_hz, "sigma_closed_nm": res.sigma_nm["closed_loop"],
+            "sigma_closed_table_nm": res.sigma_table_nm["closed_loop"], "sigma_open_nm": res.sigma_nm["open_loop"],
+            "contour_mean_nm_1000": cont.mean_error_nm, "seconds": round(time.perf_counter() - t0, 1)}
+
+
+def run_ablation(out_dir, *, seed: int = 0, twin: bool = True, redesign: bool = True, rows=None,
+                 mjcf=None, log=print) -> dict:
+    """Run the rows (all by default); returns the table as a dict (also the JSON's content)."""
+    plant = _Plant(twin, mjcf)
+    all_rows = ablation_rows()
+    chosen = [r for r in all_rows if rows is None or r.name in rows]
+    unknown = set(rows or ()) - {r.name for r in all_rows}
+    if unknown:
+        raise ValueError(f"rows: unknown {sorted(unknown)}; expected some of {[r.name for r in all_rows]}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result = {"seed": seed, "mechanics": "twin" if twin else "mujoco", "redesign": redesign,
+              "targets": PAPER_TARGETS, "rows": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        base_ctrl = None
+        if not redesign:
+            base_ctrl = _design(plant, all_rows[0], seed, Path(tmp) / "v2")
+        for row in chosen:
+            t0 = time.perf_counter()
+            work = Path(tmp) / row.name.replace(" ", "_")
+            work.mkdir(parents=True, exist_ok=True)
+            ctrl = _design(plant, row, seed, work) if redesign else base_ctrl
+            m = run_row(plant, row, ctrl, seed)
+            m.update(name=row.name, change=row.change, seconds=round(time.perf_counter() - t0, 1))
+            result["rows"].append(m)
+            log(f"{row.name:22s} settle {m['settling_ms']:7.1f} ms  sigma {m['sigma_closed_nm']:5.2f} nm "
+                f"(table {m['sigma_closed_table_nm']:5.2f})  contour {m['contour_mean_nm_1000']:6.1f} nm  "
+                f"S-BW {m['bandwidth_S_hz']:5.1f} Hz  ({m['seconds']} s)")
+    return result
+
+
+def markdown_table(result: dict) -> str:
+    """The ablation as a Markdown table (paper targets in the header row)."""
+    t = result["targets"]
+    head = ("| row | change | settling (ms) | sigma closed, sensor (nm) | sigma closed, table (nm) | "
+            "contour mean at 1000 um/s (nm) | S bandwidth (Hz) |\n|---|---|---|---|---|---|---|\n"
+            f"| paper | | {t['settling_ms']:g} | {t['sigma_closed_nm']:g} | | {t['contour_mean_nm_1000']:g} | "
+            f"{t['bandwidth_S_hz']:g} |\n")
+    lines = [f"| {r['name']} | {r['change']} | {r['settling_ms']:.1f} | {r['sigma_closed_nm']:.2f} | "
+             f"{r['sigma_closed_table_nm']:.2f} | {r['contour_mean_nm_1000']:.0f} | {r['bandwidth_S_hz']:.1f} |"
+             for r in result["rows"]]
+    return head + "\n".join(lines) + "\n"
