@@ -365,6 +365,7 @@ def _blocks(run: Path):
                 ("table", ["quantity", "MuJoCo", "linear twin", "difference"],
                  [[lab, _fmt(a), _fmt(b), _diff(b, a)] for lab, a, b in twin_rows], None)]
     out += _robustness_blocks(run)
+    out += _stage_v2_blocks(run)
     out.append(("h", 2, "Figures"))
     out += [("fig", title, rel) for title, rel in _figures(run)]
     return out
@@ -393,6 +394,12 @@ def _robustness_blocks(run: Path) -> list:
                   "samples; robustly stable if the mu peak is below 1 and every sampled spectral radius below 1."),
             ("table", ["quantity"] + [plants[k].get("plant", k) for k in plants],
              [[lab] + [_fmt(plants[k].get(key)) for k in plants] for key, lab in keys], None)]
+
+
+def _stage_v2_blocks(run: Path) -> list:
+    """Issue 12's validation (fitted or predicted), seeds and ablation tables (:mod:`nanosim.pipeline.predictions`)."""
+    from nanosim.pipeline.predictions import report_blocks
+    return report_blocks(run)
 
 
 def _markdown(blocks) -> str:
