@@ -3,7 +3,7 @@
 Usage::
 
     OPENBLAS_NUM_THREADS=1 python tools/paper_design_ablation.py --out runs/ablation [--seed 0]
-        [--mujoco] [--fixed-controller] [--rows "v2,no creep,..."]
+        [--mujoco] [--fixed-controller] [--rows "v2,no creep,..."] [--mechanism CONTROLLER_NPZ]
 
 Writes ``ablation.json`` and ``ablation.md`` into ``--out``. See
 :mod:`nanosim.pipeline.ablation` for the rows and what each one changes.
@@ -14,7 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
-from nanosim.pipeline.ablation import ablation_rows, markdown_table, run_ablation
+from nanosim.pipeline.ablation import ablation_rows, markdown_table, ring_mechanism, run_ablation
 
 
 def main(argv=None) -> int:
@@ -27,7 +27,17 @@ def main(argv=None) -> int:
                    help="keep the controller designed on the all-on stage (attribution) instead of redesigning")
     p.add_argument("--rows", default=None, help="comma-separated row names; default all: "
                    + ", ".join(r.name for r in ablation_rows()))
+    p.add_argument("--mechanism", default=None, metavar="CONTROLLER_NPZ",
+                   help="only the ring-mechanism cases with this controller (noise off), into ring_mechanism.json")
     a = p.parse_args(argv)
+    if a.mechanism:
+        rows = ring_mechanism(a.mechanism, twin=not a.mujoco)
+        Path(a.out).mkdir(parents=True, exist_ok=True)
+        Path(a.out, "ring_mechanism.json").write_text(json.dumps(rows, indent=1))
+        for r in rows:
+            print(f"| {r['case']} | {r['settling_ms']:.1f} ms | {r['overshoot_percent']:.1f} % | "
+                  f"{r['rms_after_20ms_nm']:.1f} nm |")
+        return 0
     rows = [r.strip() for r in a.rows.split(",")] if a.rows else None
     res = run_ablation(a.out, seed=a.seed, twin=not a.mujoco, redesign=not a.fixed_controller, rows=rows)
     out = Path(a.out)

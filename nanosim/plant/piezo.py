@@ -75,13 +75,28 @@ Creep -- logarithmic law, realized by series Kelvin-Voigt elements
     unchanged. Discretisation is exact for a zero-order-held input:
     ``x[n+1] = a x[n] + (1 - a) h[n]``, ``a = exp(-dt / tau)``.
 
-    The model before stage v2 (:meth:`PiezoConfig.calibrated_v1`) had one
-    10 % stage at tau = 1/29 s, placed to reproduce the identified real pole
-    near 29 rad/s, plus 1 % at 1 s and 10 s. A first-order fit to a
-    logarithmic creep over the paper's short step + PRBS record lands near
-    30 rad/s by itself (the pole is set by the record, not by a physical
-    time constant; notes/stage_v2_sources.md, finding 2), so v2 imposes no
-    time constant there.
+    Stage v1's creep (:meth:`PiezoConfig.calibrated_v1`: 10 % at 1/29 s to
+    place the paper's identified 29 rad/s pole, 1 % at 1 s and 10 s) had no
+    source; identified through the paper's excitation, neither v1 nor v2
+    creep returns that pole (``nanosim.pipeline.predictions``).
+
+Why the paper's controller rings on this piezo (issue 12), in these equations
+    The paper's design inverts the plant: its zeros sit on the 176/178 Hz
+    poles, so the closed loop leaves those modes at their open-loop damping
+    (zeta ~ 0.003). (1) An approach to the working point (~48 V) leaves every
+    operator with ``r_i`` below the excursion on its edge, ``z_i = v - r_i``.
+    (2) Creep keeps the stage moving, ``~ gamma dx log10(t)``, and the loop
+    holds position by retracting the command by ``delta`` (~0.5 V after
+    0.5 s): a reversal, after which all ``z_i`` hold. (3) A following step
+    that drives the actuator up again has the gain ``w0 = 0.75`` until ``v``
+    passes the old turning point, where every held operator re-engages at
+    once (return-point memory: ``z_i = v - r_i`` again) and the gain jumps
+    to ``w0 + sum w_i = 1.22``: a kink in the force rate in mid-step, which
+    excites the undamped modes. Without creep there is no retraction and the
+    step starts at its turning point (no mid-step kink); without hysteresis
+    the gain is constant. Either alone settles in ~9 ms; a 0.1 um
+    retraction imposed through the reference on a creep-free piezo rings
+    just as creep does (``nanosim.pipeline.ablation`` docstring).
 """
 from __future__ import annotations
 
@@ -92,6 +107,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from nanosim import constants as C
+from nanosim.plant.loopmetrics import loop_hysteresis_percent
 from nanosim.validation import as_finite_array
 
 __all__ = [
@@ -548,42 +564,3 @@ class PiezoModel:
         if self.creep is not None:
             return self.creep._run(h)
         return h if self.hysteresis is not None else h.copy()
-
-
-def loop_hysteresis_percent(v_in, y_out, n_grid: int = 2001) -> tuple[float, float]:
-    """Output and input hysteresis (%) of a single ``low -> high -> low`` loop.
-
-    Parameters
-    ----------
-    v_in, y_out : array_like, shape (N,)
-        Input and output samples of one loop; the input rises monotonically to
-        its maximum, then falls monotonically. ``y_out`` must be monotonic
-        on each branch (true for a PI model with positive weights).
-    n_grid : int
-        Number of interpolation points.
-
-    Returns
-    -------
-    output_percent : float
-        Max vertical gap between branches over the input span, divided by the
-        output travel ``max(y) - min(y)``, in %.
-    input_percent : float
-        Max horizontal gap between branches over the output range both
-        branches cover, divided by the input span ``max(v) - min(v)``, in %.
-    """
-    v = as_finite_array("v_in", v_in, ndim=1)
-    y = as_finite_array("y_out", y_out, shape=(v.size,))
-    k = int(np.argmax(v))
-    if k == 0 or k == v.size - 1:
-        raise ValueError("v_in: expected a rise to a maximum followed by a fall")
-    vu, yu = v[:k + 1], y[:k + 1]
-    vd, yd = v[k:][::-1], y[k:][::-1]
-    lo_v, hi_v = max(vu.min(), vd.min()), v[k]
-    vg = np.linspace(lo_v, hi_v, n_grid)
-    gap_out = np.interp(vg, vd, yd) - np.interp(vg, vu, yu)
-    lo_y, hi_y = max(yu.min(), yd.min()), min(yu.max(), yd.max())
-    yg = np.linspace(lo_y, hi_y, n_grid)
-    gap_in = np.interp(yg, yu, vu) - np.interp(yg, yd, vd)
-    out_pct = 100.0 * float(np.max(np.abs(gap_out))) / float(y.max() - y.min())
-    in_pct = 100.0 * float(np.max(np.abs(gap_in))) / float(v.max() - v.min())
-    return out_pct, in_pct
