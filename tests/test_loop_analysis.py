@@ -534,6 +534,36 @@ def test_loop_as_run_is_the_record_row_plant_delayed_by_one_sample():
     assert err[0] > 1e-3 and err[2] > 1e-3
 
 
+def test_bench_electronics_add_their_delay_and_filters_to_the_loop_as_run():
+    # With the bench electronics (computation delay, amplifier lag, gauge filter; nanosim.plant.filters)
+    # the loop as run is LoopPlant.twin(..., electronics) with 1 + computation_delay_samples samples.
+    from types import SimpleNamespace
+
+    from nanosim.design.controller import DiscreteController
+    from nanosim.experiments.loop import run_closed_loop
+    from nanosim.plant.electronics import ElectronicsConfig
+    from nanosim.plant.stage import StageConfig
+    from nanosim.plant.twin import TwinStage
+
+    Gd, _ = stage()
+    K, Ky, K2 = _two_dof_controller(Gd)
+    elec = ElectronicsConfig.ideal(computation_delay_samples=1, amplifier_bandwidth_Hz=10e3, gauge_bandwidth_Hz=5e3)
+    st = TwinStage(SimpleNamespace(sysd_V=Gd, dt_s=Gd.dt), config=StageConfig(electronics=elec,
+                                                                              piezo=StageConfig.ideal().piezo,
+                                                                              floor=StageConfig.ideal().floor))
+    ctrl = DiscreteController.from_matrices(K2.A, K2.B, K2.C, K2.D, Gd.dt, n_error=3)
+    r = np.zeros((200, 3))
+    r[10:] = [0.5, -0.3, 0.2]
+    y = run_closed_loop(st, ctrl, r, settle=False).y_um
+    plant = la.LoopPlant.twin(Gd, elec)
+    assert plant.delay_samples == 2
+    T = la.loop_transfer_ss(plant.G, K, Ky, delay_samples=plant.delay_samples).T_ry
+    yp = ct.forced_response(T, U=r.T).outputs.T
+    assert np.abs(y - yp).max() / np.abs(y).max() < 1e-9
+    T1 = la.loop_transfer_ss(la.LoopPlant.twin(Gd).G, K, Ky, delay_samples=2).T_ry    # delays without filters
+    assert np.abs(y - ct.forced_response(T1, U=r.T).outputs.T).max() / np.abs(y).max() > 1e-3
+
+
 def test_mujoco_reading_responds_to_the_command_of_its_own_row(ideal, twin):
     # Stage.step (MuJoCo) has the timing of the twin's record-row model: the reading after
     # step(u_0) already moves (a model fit to record rows has a feedthrough), and the impulse

@@ -66,6 +66,7 @@ from nanosim.design.lti import (
 )
 from nanosim.design.reduction import Reduction, multiplicative_uncertainty, reduce_model
 from nanosim.design.robustness import (
+    IDENTIFIED_DELAY_SAMPLES,
     LOOP_DELAY_SAMPLES,
     ROBUSTNESS_MAPS,
     STAGE_UNCERTAINTY,
@@ -79,11 +80,13 @@ from nanosim.design.robustness import (
     MuBounds,
     RobustStabilityResult,
     UncertaintySet,
+    VISIBLE_PEAK,
     analyze_controller,
     closed_loop_poles,
     controller_systems,
     disk_gain_phase,
     disk_margins,
+    electronics_ss,
     frequency_response,
     least_damped_pole,
     loop_transfer_response,
@@ -91,6 +94,7 @@ from nanosim.design.robustness import (
     mu_lower_bound,
     mu_upper_bound,
     perturbed_plant,
+    pole_visibility,
     robust_stability_mu,
     robustness_summary,
     stage_grid_hz,
@@ -120,7 +124,8 @@ __all__ = [
     # controller
     "ControllerConfig", "DiscreteController",
     # robustness
-    "LOOP_DELAY_SAMPLES", "ROBUSTNESS_MAPS", "STAGE_UNCERTAINTY", "UncertaintySet", "LoopPlant",
+    "LOOP_DELAY_SAMPLES", "IDENTIFIED_DELAY_SAMPLES", "VISIBLE_PEAK", "electronics_ss", "pole_visibility",
+    "ROBUSTNESS_MAPS", "STAGE_UNCERTAINTY", "UncertaintySet", "LoopPlant",
     "ControllerRobustness", "DiskMargin", "DiskMarginReport", "LeastDampedPole", "LoopResponse", "LoopStateSpace",
     "MuBounds", "RobustStabilityResult", "analyze_controller", "controller_systems", "closed_loop_poles",
     "disk_gain_phase", "disk_margins", "frequency_response", "least_damped_pole", "loop_transfer_response",

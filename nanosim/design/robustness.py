@@ -31,6 +31,8 @@ import control as ct
 import numpy as np
 
 from nanosim import fileio
+from nanosim.plant.electronics import ElectronicsConfig
+from nanosim.plant.filters import PREWARP_HZ, butterworth_lowpass
 from nanosim.design.controller import ControllerConfig, DiscreteController
 from nanosim.design.loopargs import check_delay, json_num
 from nanosim.design.loopresponse import (
@@ -68,14 +70,23 @@ __all__ = [
     "closed_loop_poles", "disk_gain_phase", "disk_margins", "frequency_response", "least_damped_pole",
     "loop_transfer_response", "loop_transfer_ss", "mu_lower_bound", "mu_upper_bound", "perturbed_plant",
     "robust_stability_mu", "robustness_summary", "sigma_max", "controller_systems", "analyze_controller",
-    "stage_grid_hz",
+    "stage_grid_hz", "pole_visibility", "VISIBLE_PEAK", "IDENTIFIED_DELAY_SAMPLES", "electronics_ss",
 ]
 
 # Samples between u_k computed from the reading y_k and its first effect on a reading,
 # counted from a model identified from (u_k, reading after step(u_k)) record rows.
 LOOP_DELAY_SAMPLES = 1
+# The same for a model identified by nanosim.experiments.sysid, which pairs each command with the
+# reading the controller had when it computed it (the bench's data gathering): that model is the
+# loop as run, computation delay, amplifier and gauge included.
+IDENTIFIED_DELAY_SAMPLES = 0
 # The six loop transfer matrices of robustness.json and its figure (LoopResponse names).
 ROBUSTNESS_MAPS = ("S_o", "S_i", "T_o", "T_i", "KS", "SG")
+# A closed-loop pole is "visible" if its modal term adds at least this much to the peak of
+# [T_ry, S_o] (reference and output disturbance -> y) at its resonance.  An identified model
+# assembled column by column holds a copy of each mode per column; the copies' difference is
+# (nearly) unobservable and keeps its open-loop damping in any loop (peak ~0.01).
+VISIBLE_PEAK = 0.05
 _SUMMARY_MAPS = (("So", "S_o"), ("To", "T_o"), ("Si", "S_i"), ("Ti", "T_i"), ("KS", "KS"), ("KS_fb", "KS_fb"),
                  ("SG", "SG"), ("T_ry", "T_ry"))
 
@@ -216,6 +227,54 @@ def _load_plant_npz(path, name):
     return Gd, Gc
 
 
+def electronics_ss(config: ElectronicsConfig, dt: float, n: int = 3):
+    """The bench electronics' small-signal dynamics, per channel, as the loop sees them.
+
+    Mirrors :mod:`nanosim.plant.filters` (pinned by ``tests/test_loop_analysis.py``
+    against :class:`~nanosim.plant.twin.TwinStage`): the amplifier's first-order lag as
+    the period mean the mechanics holds (``x+ = a x + (1 - a) u``, ``y = m x + (1 - m) u``,
+    ``a = exp(-T / tau)``, ``m = tau / T (1 - a)``), the gauge's Butterworth output filter
+    by Tustin prewarped at :data:`nanosim.plant.filters.PREWARP_HZ`, and the computation delay.
+    Noise, quantization, saturation, hysteresis and creep are not in it (the piezo gain
+    belongs to the uncertainty set).
+
+    Parameters
+    ----------
+    config : ElectronicsConfig
+    dt : float
+        Control period [s].
+    n : int
+        Channels.
+
+    Returns
+    -------
+    actuator, gauge : control.StateSpace or None
+        ``n x n`` discrete, diagonal (None when that element is off).
+    delay_samples : int
+        ``config.computation_delay_samples``.
+    """
+    import scipy.signal
+
+    if not isinstance(config, ElectronicsConfig):
+        raise TypeError(f"config: expected an ElectronicsConfig, got {type(config).__name__}")
+
+    def diag(one):
+        return ct.ss(*(np.kron(np.eye(n), np.atleast_2d(np.asarray(getattr(one, m), float))) for m in "ABCD"), dt)
+
+    act = gauge = None
+    if config.amplifier_bandwidth_Hz is not None:
+        tau = 1.0 / (2.0 * math.pi * float(config.amplifier_bandwidth_Hz))
+        a = math.exp(-dt / tau)
+        m = (tau / dt) * (1.0 - a)
+        act = diag(ct.ss([[a]], [[1.0 - a]], [[m]], [[1.0 - m]], dt))
+    if config.gauge_bandwidth_Hz is not None:
+        w = 2.0 * math.pi * PREWARP_HZ
+        num, den = butterworth_lowpass(config.gauge_bandwidth_Hz, config.gauge_filter_order)
+        b, a_ = scipy.signal.bilinear(num, den, fs=w / (2.0 * math.tan(w * dt / 2.0)))
+        gauge = diag(ct.ss(ct.tf(np.atleast_1d(np.squeeze(b)), a_, dt)))
+    return act, gauge, int(config.computation_delay_samples)
+
+
 @dataclass(frozen=True, eq=False)
 class LoopPlant:
     """A sampled plant as the loop runs it: ``G`` followed by ``delay_samples`` samples.
@@ -249,9 +308,12 @@ class LoopPlant:
         return float(self.G.dt)
 
     @classmethod
-    def identified(cls, model, delay_samples: int = LOOP_DELAY_SAMPLES, label: str = "identified model"):
-        """An identified model (``model.npz`` path or discrete StateSpace), already in the
-        record-row convention.
+    def identified(cls, model, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, label: str = "identified model"):
+        """An identified model (``model.npz`` path or discrete StateSpace).
+
+        ``delay_samples``: :data:`IDENTIFIED_DELAY_SAMPLES` for a model of
+        :mod:`nanosim.experiments.sysid`; :data:`LOOP_DELAY_SAMPLES` (+ the computation
+        delay) for a model identified from record rows.
         """
         Gc = None
         if isinstance(model, (str, os.PathLike)):
@@ -259,16 +321,27 @@ class LoopPlant:
         return cls(_discrete_ss("model", model), delay_samples, label, Gc)
 
     @classmethod
-    def twin(cls, twin, delay_samples: int = LOOP_DELAY_SAMPLES, label: str = "linear twin"):
+    def twin(cls, twin, electronics: ElectronicsConfig | None = None, label: str = "linear twin"):
         """A zero-order-hold model ``y_k = C x_k + D u_k`` (``twin.npz`` path or discrete
-        StateSpace) moved to the record-row convention ``(A, B, C A, C B + D)``.
+        StateSpace) moved to the record-row convention ``(A, B, C A, C B + D)``, with the
+        bench electronics (:func:`electronics_ss`; None: none, the ideal stage) around it.
+
+        The loop's delay is :data:`LOOP_DELAY_SAMPLES` plus the computation delay.
         """
         Gc = None
         if isinstance(twin, (str, os.PathLike)):
             twin, Gc = _load_plant_npz(twin, "twin")
         t = _discrete_ss("twin", twin)
         A, B, C, D = (np.asarray(m, float) for m in (t.A, t.B, t.C, t.D))
-        return cls(ct.ss(A, B, C @ A, C @ B + D, t.dt), delay_samples, label, Gc)
+        G = ct.ss(A, B, C @ A, C @ B + D, t.dt)
+        delay = LOOP_DELAY_SAMPLES
+        if electronics is not None:
+            act, gauge, comp = electronics_ss(electronics, float(t.dt), G.ninputs)
+            G = G if act is None else ct.series(act, G)
+            G = G if gauge is None else ct.series(G, gauge)
+            G = ct.ss(G.A, G.B, G.C, G.D, t.dt)
+            delay += comp
+        return cls(G, delay, label, Gc)
 
 
 def controller_systems(controller, n_error: int | None = None):
@@ -301,6 +374,41 @@ def controller_systems(controller, n_error: int | None = None):
     K = ct.ss(A, B[:, :ne], C, D[:, :ne], sys2.dt)
     Ky = None if B.shape[1] == ne else ct.ss(A, B[:, ne:], C, D[:, ne:], sys2.dt)
     return K, Ky
+
+
+def pole_visibility(G, K, Ky=None, delay_samples: int = 0, dt=None) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-loop poles and the peak each adds to ``[T_ry, S_o]`` (r, d_o -> y) at its resonance.
+
+    Parameters
+    ----------
+    G, K, Ky, delay_samples, dt
+        As in :func:`loop_transfer_ss`.
+
+    Returns
+    -------
+    poles : ndarray, complex
+        Closed-loop poles (``z`` or ``s`` [rad/s]).
+    peak : ndarray
+        ``sigma_max(R_k) / (1 - |z_k|)`` (discrete) or ``sigma_max(R_k) / |Re s_k|``
+        (continuous), ``R_k`` the residue of the pole in ``[T_ry, S_o]`` [sensor V / sensor V].
+    """
+    L = loop_transfer_ss(G, K, Ky, delay_samples, dt)
+    CL = L.closed_loop
+    ny = L.S_o.noutputs
+    nu = CL.ninputs - 2 * ny
+    A = np.asarray(CL.A, float)
+    if not A.size:
+        return np.zeros(0, complex), np.zeros(0)
+    lam, V = np.linalg.eig(A)
+    Wl = np.linalg.solve(V, np.asarray(CL.B, float)[:, list(range(ny)) + list(range(ny + nu, 2 * ny + nu))])
+    Cy = np.asarray(CL.C, float)[:ny] @ V
+    discrete = ct.isdtime(CL, strict=True)
+    peak = np.empty(lam.size)
+    for k in range(lam.size):
+        r = np.linalg.norm(np.outer(Cy[:, k], Wl[k]), 2)
+        dist = (1.0 - abs(lam[k])) if discrete else abs(lam[k].real)
+        peak[k] = r / max(dist, 1e-15)
+    return lam, peak
 
 
 def _poles_as_ss(poles_s: np.ndarray) -> ct.StateSpace:
@@ -347,7 +455,8 @@ class ControllerRobustness:
     poles : ndarray, complex
         Closed-loop poles (``z``).
     summary : dict
-        :func:`robustness_summary`-style figures plus ``least_damped_*_50_1000hz``.
+        :func:`robustness_summary`-style figures plus ``least_damped_*_50_1000hz`` and
+        ``least_damped_visible_*`` (poles with :func:`pole_visibility` >= :data:`VISIBLE_PEAK`).
     uncertainty : UncertaintySet or None
     """
 
@@ -415,6 +524,10 @@ def analyze_controller(controller, plant, *, n_error: int | None = None, uncerta
     band = _poles_dict(poles, plant.dt, MODE_BAND_HZ)
     summary["least_damped_zeta_50_1000hz"] = band.get("least_damped_zeta")
     summary["least_damped_freq_50_1000hz_hz"] = band.get("least_damped_freq_hz")
+    lam, peak = pole_visibility(G, K, Ky, d)
+    vis = _poles_dict(lam[peak >= VISIBLE_PEAK], plant.dt, None)
+    summary["least_damped_visible_zeta"] = vis.get("least_damped_zeta")
+    summary["least_damped_visible_freq_hz"] = vis.get("least_damped_freq_hz")
     r = loop.response(f)
     summary.update(_peaks_dict(loop, f, r))
     rep = disk_margins(G, K, f, Ky, delay_samples=d)

@@ -75,6 +75,11 @@ class DesignConfig:
         See :func:`nanosim.design.discretize.discretize_controller`.
     gamma_relax : float
         0 = optimal central controller.
+    delay_samples : int or None
+        Computation delay of the loop as run, put into the design model (Pade
+        approximant at the plant input) [samples]; None = the loop's actual delay relative
+        to the identified model (:func:`nanosim.pipeline.design.model_loop_delay_samples`);
+        0 = none (the paper).
     """
 
     reduced_order: int = DEFAULT_REDUCED_ORDER
@@ -83,8 +88,12 @@ class DesignConfig:
     weights: str | os.PathLike | None = None
     discretization: str = "auto"
     gamma_relax: float = 0.0
+    delay_samples: int | None = None
 
     def __post_init__(self):
+        d = self.delay_samples
+        if d is not None and (isinstance(d, bool) or not isinstance(d, int) or not 0 <= d <= 4):
+            raise ValueError(f"delay_samples: expected None (the loop's delay) or an integer in 0..4, got {d!r}")
         if isinstance(self.reduced_order, bool) or not isinstance(self.reduced_order, int) or self.reduced_order < 1:
             raise ValueError(f"reduced_order: expected a positive integer, got {self.reduced_order!r}")
         z = self.damping_zeta
@@ -98,8 +107,8 @@ class DesignConfig:
 
     @classmethod
     def paper(cls, **overrides) -> "DesignConfig":
-        """The paper's set-up: 10-state design model, single H-infinity loop, no damping loop."""
-        return replace(cls(reduced_order=PAPER_REDUCED_ORDER, damping_zeta=0.0), **overrides)
+        """The paper's set-up: 10-state design model, single H-infinity loop, no damping loop, no delay."""
+        return replace(cls(reduced_order=PAPER_REDUCED_ORDER, damping_zeta=0.0, delay_samples=0), **overrides)
 
     @property
     def has_damping_loop(self) -> bool:

@@ -46,7 +46,8 @@ from nanosim.design.lti import (
     single_threaded_blas,
 )
 from nanosim.design.reduction import multiplicative_uncertainty, reduce_model
-from nanosim.design.robustness import LOOP_DELAY_SAMPLES, STAGE_UNCERTAINTY, LoopPlant, analyze_controller
+from nanosim.design.loopresponse import delay_ss
+from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES, STAGE_UNCERTAINTY, LoopPlant, analyze_controller
 from nanosim.design.weights import Weights
 from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
@@ -61,9 +62,14 @@ from nanosim.plots.design import (
     plot_uncertainty,
     plot_weights,
 )
+from nanosim.plant.stage import StageConfig
 from nanosim.plots.robustness import plot_disk_margins, plot_loop_singular_values
 
-__all__ = ["run_design", "write_robustness"]
+__all__ = ["run_design", "write_robustness", "model_loop_delay_samples", "DELAY_PADE_ORDER"]
+
+# Order of the Pade approximant of the loop's computation delay in the design model (per input):
+# exp(-s T) at T = 250 us to 0.2 deg at 500 Hz.
+DELAY_PADE_ORDER = 2
 
 _ROBUSTNESS_UNITS = {
     "peak_<map>": "largest singular value, dimensionless for So, Si, To, Ti; controller V / sensor V for KS, "
@@ -73,6 +79,9 @@ _ROBUSTNESS_UNITS = {
     "gain_margin_low/high": "gain factor", "spectral_radius, sampled_worst": "|z| of the closed-loop poles",
     "mu_*": "structured singular value over the uncertainty set (robustly stable if mu_peak < 1)",
     "least_damped_zeta": "damping ratio of the least damped closed-loop pole (z mapped by s = ln z / dt)",
+    "least_damped_visible_*": "the same among the poles that add >= 0.05 to the peak of [T_ry, S_o] (the identified "
+                              "model holds one copy of each mode per column; the copies' difference stays undamped "
+                              "and unobservable)",
 }
 
 
@@ -84,6 +93,53 @@ class _Progress:
     def __call__(self, msg: str):
         if self.enabled:
             print(f"[nanosim.design {time.perf_counter() - self.t0:7.2f} s] {msg}", file=sys.stderr, flush=True)
+
+
+def model_loop_delay_samples(model_npz) -> int:
+    """Delay of the loop as run beyond the model in ``model_npz`` [samples].
+
+    The file's ``loop_delay_samples`` if it has one, else
+    :data:`nanosim.design.robustness.IDENTIFIED_DELAY_SAMPLES` (0): ``nanosim identify``
+    pairs each command with the reading the controller had, so its model has the loop's
+    delays. (A model identified from record rows, ``u_k`` with the reading after
+    ``step(u_k)``, lacks :data:`~nanosim.design.robustness.LOOP_DELAY_SAMPLES` plus the
+    computation delay: give it a ``loop_delay_samples`` entry.)
+    """
+    z = fileio.load_npz(model_npz, required=("A", "B", "C", "D"))
+    if "loop_delay_samples" in z:
+        return int(np.asarray(z["loop_delay_samples"]).ravel()[0])
+    return IDENTIFIED_DELAY_SAMPLES
+
+
+def _twin_as_run(G_twin, electronics, dt: float):
+    """The continuous twin as the sampled loop sees it.
+
+    The zero-order hold's half sample and the computation delay (Pade), the amplifier's
+    first-order lag and the gauge's Butterworth filter.
+    """
+    import control as ct
+    from nanosim.plant.filters import butterworth_lowpass
+    if G_twin is None:
+        return None
+    n = G_twin.ninputs
+    G = _with_input_delay(G_twin, (0.5 + electronics.computation_delay_samples) * dt)
+    if electronics.amplifier_bandwidth_Hz is not None:
+        wa = 2 * np.pi * electronics.amplifier_bandwidth_Hz
+        G = ct.series(ct.append(*[ct.ss(ct.tf([wa], [1.0, wa]))] * n), G)
+    if electronics.gauge_bandwidth_Hz is not None:
+        num, den = butterworth_lowpass(electronics.gauge_bandwidth_Hz, electronics.gauge_filter_order)
+        G = ct.series(G, ct.append(*[ct.ss(ct.tf(num, den))] * G.noutputs))
+    return ct.ss(G.A, G.B, G.C, G.D)
+
+
+def _with_input_delay(G, delay_s: float):
+    """``G(s)`` behind a Pade(:data:`DELAY_PADE_ORDER`) approximant of ``exp(-s delay_s)`` per input."""
+    import control as ct
+    if G is None or delay_s <= 0:
+        return G
+    Dl = delay_ss(G.ninputs, 1, "continuous", delay_s, DELAY_PADE_ORDER, 0)
+    Gs = ct.series(Dl, G)
+    return ct.ss(Gs.A, Gs.B, Gs.C, Gs.D)
 
 
 def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNCERTAINTY, mu: bool = True) -> dict:
@@ -112,9 +168,10 @@ def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNC
     out.mkdir(parents=True, exist_ok=True)
     analyses = {k: analyze_controller(controller, p, uncertainty=uncertainty, mu=mu) for k, p in plants.items()}
     doc = {"controller": str(controller) if isinstance(controller, (str, os.PathLike)) else type(controller).__name__,
-           "loop_delay_samples": LOOP_DELAY_SAMPLES,
-           "loop": "u_k = K (r_k - y_k) + Ky y_k from the reading y_k; Stage.step(u_k) returns y_(k+1). Each plant is "
-                   "in the record-row convention (u_k -> reading after step(u_k)) followed by loop_delay_samples.",
+           "loop": "u_k = K (r_k - y_k) + Ky y_k from the reading y_k; Stage.step(u_k) returns y_(k+1) and the "
+                   "command reaches the DAC after the computation delay. Each plant's loop_delay_samples is the delay "
+                   "beyond its model (twin: 1 + computation delay, amplifier and gauge filters added; identified "
+                   "model: 0, it was identified from the readings the controller had).",
            "uncertainty_set": uncertainty.to_dict(), "units": _ROBUSTNESS_UNITS,
            "plants": {k: a.to_dict() for k, a in analyses.items()}}
     for key in ("disk_margin_alpha", "dm_input_alpha", "dm_output_alpha", "mu_peak", "peak_So", "peak_Si"):
@@ -148,7 +205,8 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
         mapping or .json/.toml path), discretization method and ``gamma_relax``.
         Default ``DesignConfig()``.
     twin : control.StateSpace or path to an ``.npz`` with ``A, B, C, D``, optional
-        Independent plant for a closed-loop stability check.
+        Independent plant for a closed-loop stability check (its sampled loop is analysed
+        with the zero-order hold's half-sample delay).
     progress : bool, default False
         Print stage messages to stderr.
     dt : float, optional
@@ -183,6 +241,13 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
         G_twin = load_state_space_npz(twin)[0] if isinstance(twin, (str, os.PathLike)) else as_ss("twin", twin)
     if dt is None:
         dt = Gd_full.dt if Gd_full is not None else constants.CONTROL_PERIOD_S
+    # delay the loop has beyond the model: into the design model unless the config says otherwise (the
+    # paper: 0). The identified model has the bench's delays and filters; the twin (mechanics) gets them here.
+    loop_delay = model_loop_delay_samples(model_npz)
+    design_delay = loop_delay if cfg.delay_samples is None else cfg.delay_samples
+    G_des = _with_input_delay(G_full, design_delay * dt)
+    bench = StageConfig().electronics
+    G_twin_run = _twin_as_run(G_twin, bench, dt)
     timings = {}
     t = time.perf_counter()
     red = reduce_model(G_full, cfg.reduced_order)
@@ -194,9 +259,11 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
     if damping_zeta is not None:
         dl = damping_loop(red.G_reduced, damping_zeta, lowpass_hz=cfg.damping_lowpass_hz)
         say(f"damping loop: +{dl.zeta_added:g} damping at {dl.mode_hz:.1f} Hz, low-pass {dl.lowpass_hz:g} Hz")
+    if design_delay:
+        say(f"design model with the loop's computation delay: {design_delay} sample(s), Pade({DELAY_PADE_ORDER})")
     t = time.perf_counter()
-    d = design_hinf(damped_plant(red.G_reduced, dl), W, G_full=damped_plant(G_full, dl),
-                    G_twin=damped_plant(G_twin, dl), gamma_relax=cfg.gamma_relax)
+    d = design_hinf(damped_plant(_with_input_delay(red.G_reduced, design_delay * dt), dl), W,
+                    G_full=damped_plant(G_des, dl), G_twin=damped_plant(G_twin_run, dl), gamma_relax=cfg.gamma_relax)
     d = dataclasses.replace(d, damping=dl)
     timings["synthesis_and_analysis_s"] = time.perf_counter() - t
     say(f"H-infinity: gamma = {d.gamma:.4f}, controller order {d.controller_order}, "
@@ -284,6 +351,12 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
                           "S_peak_nominal_max": PAPER["S_nom"], "S_peak_full_model_max": PAPER["S_full"],
                           "bandwidth_S_hz": PAPER["bwS"], "bandwidth_T_hz": PAPER["bwT"]},
         "timings_s": timings, "gamma_relax": float(cfg.gamma_relax),
+        "loop_delay_samples": loop_delay, "design_delay_samples": design_delay,
+        "design_delay_model": f"Pade({DELAY_PADE_ORDER}) of exp(-s {design_delay} dt) per input" if design_delay
+        else "none",
+        "twin_analysis": None if G_twin is None else
+        f"twin behind Pade({DELAY_PADE_ORDER}) of {0.5 + bench.computation_delay_samples:g} samples (zero-order hold "
+        f"and computation delay), amplifier {bench.amplifier_bandwidth_Hz} Hz, gauge {bench.gauge_bandwidth_Hz} Hz",
         "inputs": {"model_npz": str(model_npz),
                    "twin": None if twin is None else (str(twin) if isinstance(twin, (str, os.PathLike))
                                                       else f"StateSpace, {G_twin.nstates} states")},
@@ -300,9 +373,10 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
     plants = {}
     if G_twin is not None:
         twin_d = load_state_space_npz(twin)[1] if isinstance(twin, (str, os.PathLike)) else None
-        plants["twin"] = LoopPlant.twin(twin_d if twin_d is not None else ct.c2d(G_twin, dt, "zoh"))
+        plants["twin"] = LoopPlant.twin(twin_d if twin_d is not None else ct.c2d(G_twin, dt, "zoh"), bench)
     # the identified discrete model is in the record-row convention; a ZOH discretization is not
-    plants["identified"] = LoopPlant.identified(Gd) if Gd is Gd_full else LoopPlant.twin(Gd, label="full model")
+    plants["identified"] = (LoopPlant.identified(Gd, delay_samples=loop_delay) if Gd is Gd_full
+                            else LoopPlant.twin(Gd, label="full model"))
     write_robustness(out, out / A.CONTROLLER_NPZ, plants)
 
     say("writing figures")

@@ -376,19 +376,19 @@ def _robustness_blocks(run: Path) -> list:
     rob = _load(run, A.ROBUSTNESS_JSON)
     if not rob.get("plants"):
         return []
-    keys = [("peak_So", "peak sigma_max(S_o)"), ("peak_Si", "peak sigma_max(S_i)"), ("peak_To", "peak sigma_max(T_o)"),
+    keys = [("loop_delay_samples", "delay beyond the model [samples]"), ("peak_So", "peak sigma_max(S_o)"), ("peak_Si", "peak sigma_max(S_i)"), ("peak_To", "peak sigma_max(T_o)"),
             ("peak_KS", "peak sigma_max(KS) [V/V]"), ("peak_SG", "peak sigma_max(SG) [V/V]"),
             ("dm_input_alpha", "multiloop disk margin, input"), ("dm_output_alpha", "multiloop disk margin, output"),
             ("dm_input_output_alpha", "disk margin, input + output"),
             ("dm_output_phase_margin_deg", "disk phase margin, output [deg]"),
-            ("least_damped_zeta", "least damped closed-loop pole, zeta"),
-            ("least_damped_freq_hz", "  its frequency [Hz]"),
+            ("least_damped_visible_zeta", "least damped visible closed-loop pole, zeta"),
+            ("least_damped_visible_freq_hz", "  its frequency [Hz]"),
             ("mu_peak", "mu peak over the uncertainty set"), ("sampled_worst", "worst sampled spectral radius")]
     plants = rob["plants"]
     u = rob.get("uncertainty_set", {})
     return [("h", 2, "Robustness"),
-            ("p", f"The exported discrete controller on the loop as run (computation delay "
-                  f"{rob.get('loop_delay_samples')} sample; robustness.json). Uncertainty set: piezo gain per channel "
+            ("p", "The exported discrete controller on the loop as run, with the linear twin (bench delays and filters "
+                  "added) and with the identified model (robustness.json). Uncertainty set: piezo gain per channel "
                   f"{u.get('input_gain_range_factor')}, modal frequencies x{u.get('freq_scale_range_factor')}, "
                   f"modal damping x{u.get('damping_scale_range_factor')}, delay {u.get('delay_samples_range')} "
                   "samples; robustly stable if the mu peak is below 1 and every sampled spectral radius below 1."),
