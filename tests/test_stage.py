@@ -147,3 +147,87 @@ def test_bad_commands_raise_before_simulating(bad, match):
     assert st.time_s == 0.0
     with pytest.raises(ValueError, match="u_V"):
         st.run(np.zeros((5, 2)))
+
+
+# --- stage v2: computation delay, floor vibration, noise budget (issue 12) -------------------------
+
+def test_computation_delay_shifts_the_mujoco_response_by_one_sample(model):
+    """Same command, delay 1 vs 0 (everything else off): the response is the same, one period later."""
+    from dataclasses import replace
+    base = StageConfig.ideal()
+    u = np.zeros((200, 3))
+    u[20:, 0] = 0.2
+    y0 = Stage(config=base, model=model).run(u).table_um
+    y1 = Stage(config=replace(base, electronics=ElectronicsConfig.ideal(computation_delay_samples=1)),
+               model=model).run(u).table_um
+    assert_allclose(y1[1:], y0[:-1], rtol=0, atol=1e-9)
+
+
+def test_floor_model_statics_match_mujoco_under_a_body_force(model):
+    """Base acceleration a is an inertial load -m a at every body's centre of mass: MuJoCo agrees statically."""
+    import mujoco
+    from nanosim.plant.floor import floor_model
+    from nanosim.plant.mechanics import home_data
+    from nanosim.plant.mjcf import probe_layout
+    fm = floor_model(model)
+    adr, bias = probe_layout(model)
+    for axis in range(3):
+        out = []
+        for da in (0.0, 2.0):                 # 2 m/s^2 of base acceleration along the axis
+            d = home_data(model)
+            d.xfrc_applied[:, :3] = 0.0
+            d.xfrc_applied[1:, axis] = -da * model.body_mass[1:]
+            for _ in range(40):               # settle, 2 s
+                mujoco.mj_step(model, d, int(round(0.05 / model.opt.timestep)))
+            out.append((d.sensordata[adr] + bias) * 1e6)
+        static = (out[1] - out[0]) / 2.0
+        assert_allclose(static, fm.static_um_per_m_s2[:, axis], rtol=0.03,
+                        atol=0.03 * np.abs(fm.static_um_per_m_s2).max())
+
+
+def test_floor_vibration_sigma_matches_its_spectrum(model):
+    """Sampled relative motion vs the integral of |H|^2 S_a over the Nyquist band (white, ZOH) within 8 %."""
+    from nanosim.plant.floor import FloorConfig, FloorVibration, floor_model
+    fm = floor_model(model)
+    S = 3e-11
+    d = FloorVibration(fm, FloorConfig(accel_psd_m2_s4_Hz=S), seed=3).run(120_000)[20_000:]
+    f = np.linspace(0.05, 2000.0, 200_001)
+    z = np.exp(2j * np.pi * f * fm.dt_s)
+    n = fm.Ad.shape[0]
+    var = np.zeros(3)
+    for k, zk in enumerate(z):
+        H = zk * fm.Cd @ np.linalg.solve(zk * np.eye(n) - fm.Ad, fm.Bd)      # (3, 3): um per m/s^2
+        var += (np.abs(H) ** 2).sum(axis=1)
+    var *= S * (f[1] - f[0])
+    assert_allclose(d.std(axis=0), np.sqrt(var), rtol=0.08)
+
+
+def test_twin_and_mujoco_stage_share_the_floor_series(model, twin):
+    from nanosim.plant.floor import floor_model
+    from nanosim.plant.twin import TwinStage
+    cfg = StageConfig(electronics=ElectronicsConfig.ideal(), piezo=PiezoConfig.linear())
+    a = Stage(seed=5, config=cfg, model=model)
+    home = a.table_um.copy()
+    ta = a.run(np.zeros((400, 3))).table_um - home
+    tb = TwinStage(twin, seed=5, config=cfg, home_um=home, floor_model=floor_model(model)).run(np.zeros((400, 3)))
+    assert_allclose(tb.table_um - home, ta, rtol=0, atol=1e-9)
+    assert np.abs(ta).max() > 1e-4                                       # the floor moves the table
+
+
+def test_noise_budget_adds_up_on_the_twin(model, twin):
+    """One source at a time: the variances add up to the all-sources variance (linear plant)."""
+    from nanosim.experiments.loop import run_closed_loop
+    from nanosim.experiments.resolution import noise_budget, noise_sources
+    from nanosim.plant.floor import floor_model
+    from nanosim.plant.twin import TwinStage
+    from nanosim.design.controller import ControllerConfig, DiscreteController
+    cfg = StageConfig(piezo=PiezoConfig.linear())
+    assert set(noise_sources(cfg)) == {"DAC", "amplifier", "gauge", "floor vibration", "DAC and ADC quantization"}
+    # the loop opened (K = 0): the sources add up exactly in variance, up to their finite-record cross terms
+    K = DiscreteController(ControllerConfig(Akd=np.zeros((1, 1)), Bkd=np.zeros((1, 3)), Ckd=np.zeros((3, 1)),
+                                            Dkd=np.zeros((3, 3)), dt=1 / 4000))
+    st = TwinStage(twin, seed=2, config=cfg, home_um=Stage(model=model).table_um, floor_model=floor_model(model))
+    rows = noise_budget(st, K, seed=2, duration_s=3.0)
+    total = run_closed_loop(st.variant(cfg, 2), K, np.zeros((12000, 3))).y_um[:, 0].std() * 1e3
+    assert_allclose(np.sqrt(sum(r["sensor_nm"] ** 2 for r in rows.values())), total, rtol=0.05)
+    assert_allclose(sum(r["sensor_share"] for r in rows.values()), 1.0, rtol=1e-12)
