@@ -13,7 +13,8 @@ import numpy as np
 
 __all__ = [
     "PAPER_MODES_HZ", "PAPER_MODE_AXES", "PAPER_GAMMA", "PAPER_CONTROLLER_ORDER", "PAPER_FIT_PERCENT",
-    "PAPER_IDENTIFIED_ORDER_PER_COLUMN", "PAPER_REDUCED_ORDER", "PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ", "PAPER",
+    "PAPER_IDENTIFIED_ORDER_PER_COLUMN", "PAPER_REDUCED_ORDER", "PAPER_APPENDIX_A_DAMPING",
+    "PAPER_MODE_DAMPING_MEAN", "PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ", "PAPER",
     "Band", "BANDS", "MODE_REL_TOL",
     "STATIC_GAIN_REL_TOL", "CLOSURE_VIOLATION_MAX", "SMALL_STEP_TOL_NM",
 ]
@@ -24,6 +25,15 @@ PAPER_MODE_AXES = ("XY", "XY", "Z", "XY", "XY", "Z")
 PAPER_FIT_PERCENT = np.array([[95.9, 95.2, 96.1], [90.2, 91.8, 95.0], [95.1, 89.9, 88.5]])   # Table 1
 PAPER_IDENTIFIED_ORDER_PER_COLUMN = 13     # Sec. 3: "the identified model has a rank of 13" per 3x1 column
 PAPER_REDUCED_ORDER = 10                   # Sec. 4.1: the first ten balanced states are kept
+# Appendix A: damping ratio b / (2 sqrt(c)) of the six second-order denominator factors of each column
+# (actuator A, B, C), modes in PAPER_MODES_HZ order (../shared/reference/paper_targets.json,
+# key appendix_A_denominators)
+PAPER_APPENDIX_A_DAMPING = {
+    "A": (0.00314, 0.00383, 0.00342, 0.00387, 0.00356, 0.00749),
+    "B": (0.00297, 0.00372, 0.00330, 0.00497, 0.00558, 0.00316),
+    "C": (0.00295, 0.00352, 0.00377, 0.00767, 0.00366, 0.00341),
+}
+PAPER_MODE_DAMPING_MEAN = tuple(float(np.mean(col)) for col in zip(*PAPER_APPENDIX_A_DAMPING.values()))
 
 # --- H-infinity design (Sec. 4.2) --------------------------------------------
 PAPER_GAMMA = 1.34
