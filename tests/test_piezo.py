@@ -270,3 +270,12 @@ def test_config_is_frozen_and_hashable():
         cfg.hysteresis = False
     assert hash(cfg) == hash(PiezoConfig())
     assert len(cfg.pi_thresholds_V) == len(cfg.pi_weights)
+
+
+def test_reversal_gain_lies_in_the_published_band():
+    """Small-signal gain after a reversal / large-signal secant: Rayleigh law 1 - 2w (0.70 for the paper's
+    15 % loop, 0.80 for 10 %; Damjanovic 1998, PI's 10-15 % large-signal loops) -> 0.65-0.85."""
+    cfg = PiezoConfig()
+    w0 = cfg.small_signal_gain()
+    assert 0.65 <= w0 / cfg.loop_slope(PEAK_V) <= 0.85
+    assert abs(w0 / cfg.loop_slope(PEAK_V) - (1 - 2 * 0.15)) < 0.06
