@@ -46,7 +46,10 @@ def prbs_hold_samples(band_hz: float, *, fs: float) -> int:
     band_hz = positive_float("band_hz", band_hz)
     if band_hz > fs / 2 * (1 + 1e-12):
         raise ValueError(f"band_hz: expected a value <= fs/2 = {fs / 2:g} Hz, got {band_hz:g} Hz")
-    return max(1, int(round(fs / (2.0 * band_hz))))
+    hold = fs / (2.0 * band_hz)
+    if not hold < 2.0**62:        # a band so narrow that one chip would outlast any record (or overflow)
+        raise ValueError(f"band_hz: expected at least fs/2**63 = {fs / 2.0**63:.3g} Hz, got {band_hz:g} Hz")
+    return max(1, int(round(hold)))
 
 
 def prbs(n_samples: int, band_hz: float, *, fs: float, amplitude: float = 1.0, seed=0) -> np.ndarray:
@@ -97,7 +100,7 @@ def prbs(n_samples: int, band_hz: float, *, fs: float, amplitude: float = 1.0, s
         state[rng.integers(nbits)] = 1
     chips = _sig.max_len_seq(nbits, state=state, length=n_chips)[0]
     u = amplitude * (2.0 * chips.astype(float) - 1.0)
-    return np.repeat(u, hold)[:n_samples]
+    return u[np.arange(n_samples) // hold]            # each chip held ``hold`` samples (never more than needed)
 
 
 def _seed_sequence(seed) -> np.random.SeedSequence:

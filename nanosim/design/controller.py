@@ -42,6 +42,16 @@ _REQUIRED = ("Akd", "Bkd", "Ckd", "Dkd", "dt")
 _OPTIONAL = ("n_error",)
 
 
+def _floats(name: str, value) -> np.ndarray:
+    """``value`` as a float array; ``ValueError`` naming ``name`` for anything that is not real numbers."""
+    if np.iscomplexobj(value):
+        raise ValueError(f"{name}: expected real numbers, got complex values")
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected numbers, got {type(value).__name__}") from None
+
+
 def _readonly(a) -> np.ndarray:
     a = np.array(a, dtype=float, copy=True)
     a.setflags(write=False)
@@ -78,10 +88,7 @@ class ControllerConfig:
     def __post_init__(self):
         mats = {}
         for k in ("Akd", "Bkd", "Ckd", "Dkd"):
-            try:
-                a = np.asarray(getattr(self, k), dtype=float)
-            except (TypeError, ValueError):
-                raise ValueError(f"{k}: expected a numeric matrix") from None
+            a = _floats(k, getattr(self, k))
             if a.ndim != 2:
                 raise ValueError(f"{k}: expected a 2-D matrix, got shape {a.shape}")
             if not np.all(np.isfinite(a)):
@@ -97,7 +104,7 @@ class ControllerConfig:
             raise ValueError(f"Ckd: expected {n} columns (states), got shape {C.shape}")
         if D.shape != (C.shape[0], B.shape[1]):
             raise ValueError(f"Dkd: expected shape {(C.shape[0], B.shape[1])}, got {D.shape}")
-        dt = np.asarray(self.dt, dtype=float)
+        dt = _floats("dt", self.dt)
         if dt.size != 1 or not np.isfinite(dt) or float(dt) <= 0:
             raise ValueError(f"dt: expected one positive sample time in s, got {self.dt!r}")
         for k, a in mats.items():
@@ -227,7 +234,7 @@ class DiscreteController:
         if x0 is None:
             self._xe[:] = 0.0
             return
-        x0 = np.asarray(x0, dtype=float)
+        x0 = _floats("x0", x0)
         if x0.shape != (self._n,) or not np.all(np.isfinite(x0)):
             raise ValueError(f"x0: expected {self._n} finite values, got shape {x0.shape}")
         self._xe[: self._n] = x0
@@ -247,13 +254,13 @@ class DiscreteController:
         """One closed-loop sample: ``step(r - y)``, or ``step(r - y, y)`` for a
         two-degree-of-freedom controller (``r``, ``y`` in sensor V).
         """
-        y = np.asarray(measurement_V, dtype=float)
-        e = np.asarray(reference_V, dtype=float) - y
+        y = _floats("measurement_V", measurement_V)
+        e = _floats("reference_V", reference_V) - y
         return self.step(e, y) if self.two_dof else self.step(e)
 
     @staticmethod
     def _check(name, value, n) -> np.ndarray:
-        v = np.asarray(value, dtype=float)
+        v = _floats(name, value)
         if v.shape != (n,):
             raise ValueError(f"{name}: expected shape ({n},), got {v.shape}")
         if not np.isfinite(v).all():
@@ -308,7 +315,7 @@ class DiscreteController:
         ndarray, shape (N, n_out)
             Commands [controller V]. The state is left at sample N.
         """
-        E = np.asarray(error_seq, dtype=float)
+        E = _floats("error_seq", error_seq)
         if E.ndim != 2 or E.shape[1] != self._ne:
             raise ValueError(f"error_seq: expected shape (N, {self._ne}), got {E.shape}")
         if not np.isfinite(E).all():
@@ -316,7 +323,7 @@ class DiscreteController:
         if self.two_dof:
             if measurement_seq is None:
                 raise ValueError("measurement_seq: this controller has an active-damping loop; pass y as well")
-            Y = np.asarray(measurement_seq, dtype=float)
+            Y = _floats("measurement_seq", measurement_seq)
             if Y.shape != (E.shape[0], self._nin - self._ne) or not np.isfinite(Y).all():
                 raise ValueError(f"measurement_seq: expected finite shape ({E.shape[0]}, {self._nin - self._ne}), "
                                  f"got {Y.shape}")

@@ -43,6 +43,8 @@ _AXIS_RTOL = 1e-9
 
 def _coeffs(name: str, what: str, value) -> tuple[float, ...]:
     try:
+        if np.iscomplexobj(value):
+            raise TypeError("complex")
         arr = np.atleast_1d(np.asarray(value, dtype=float))
     except (TypeError, ValueError):
         raise ValueError(f"{name}.{what}: expected a list of numbers, got {value!r}") from None
@@ -82,7 +84,11 @@ class WeightSpec:
         object.__setattr__(self, "num", _coeffs(self.name, "num", self.num))
         object.__setattr__(self, "den", _coeffs(self.name, "den", self.den))
         p = self.power
-        if isinstance(p, bool) or not float(p).is_integer() or int(p) < 1:
+        try:
+            whole = not isinstance(p, bool) and float(p).is_integer() and int(p) >= 1
+        except (TypeError, ValueError, OverflowError):
+            whole = False
+        if not whole:
             raise ValueError(f"{self.name}.power: expected an integer >= 1, got {p!r}")
         object.__setattr__(self, "power", int(p))
 

@@ -1,0 +1,537 @@
+"""Issue 15, "Why": each item reproduced as a test (each failed on fd62ecd and passes now).
+
+Run folders that never lie (interrupt, concurrent writers, readers refusing a folder that does not
+match its manifest), one-line errors with exit 2 (file-system errors included, write access checked
+before any work), validation of every bad value of item 4, file permissions, the report's pass count
+and warnings, ``--version``, ``python -m nanosim`` and the wheel. Signals and concurrency are driven
+through subprocesses; everything else runs in-process to keep the suite short.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nanosim.cli import build_parser, main
+from nanosim.fileio import write_npz
+
+ENV = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+COMPARE_TOOL = Path(__file__).resolve().parents[2] / "shared" / "tools" / "compare_to_paper.py"
+
+
+def nanosim(*args, cwd=None, timeout=120, umask=None):
+    return subprocess.run([sys.executable, "-m", "nanosim.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, env=ENV, cwd=cwd, umask=-1 if umask is None else umask)
+
+
+def start(*args, cwd=None):
+    return subprocess.Popen([sys.executable, "-m", "nanosim.cli", *map(str, args)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=ENV, cwd=cwd)
+
+
+def wait_for(condition, proc, timeout=120.0):
+    """Wait until ``condition()`` holds while ``proc`` runs (imports take seconds on a loaded machine)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert proc.poll() is None, proc.communicate()[1]
+        assert time.monotonic() < deadline, "the command never started writing"
+        time.sleep(0.05)
+
+
+def zero_controller(path, dt=2.5e-4):
+    """A valid (do-nothing) controller file: Akd..Dkd and the loop's sample time."""
+    return write_npz(path, Akd=np.zeros((1, 1)), Bkd=np.zeros((1, 3)), Ckd=np.zeros((3, 1)), Dkd=np.zeros((3, 3)),
+                     dt=dt)
+
+
+def digest(folder: Path) -> dict:
+    """sha256 of every file under ``folder`` (relative POSIX paths)."""
+    return {p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def error_lines(stderr: str) -> list[str]:
+    """stderr without progress output (tqdm bars and the indented progress lines)."""
+    lines = [ln.split("\r")[-1] for ln in stderr.splitlines()]
+    return [ln for ln in lines if ln.strip() and not ln.startswith("  ") and "it/s]" not in ln
+            and "exp/s" not in ln and "?exp" not in ln and "step/s" not in ln]
+
+
+def in_process(capsys, *argv) -> tuple[int, list[str]]:
+    """``main(argv)`` in this process: (exit status, stderr lines); argparse errors included."""
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as exc:
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return rc, [ln for ln in err.splitlines() if ln.strip()]
+
+
+@pytest.fixture(scope="module")
+def sealed(tmp_path_factory):
+    """A complete run made by the CLI under umask 022: ``characterize --only small_steps`` (a few s)."""
+    base = tmp_path_factory.mktemp("sealed")
+    ctrl = zero_controller(base / "zero_controller.npz")
+    p = nanosim("characterize", "--controller", ctrl, "--out", base / "run", "--only", "small_steps", "--seed", 3,
+                umask=0o022)
+    assert p.returncode == 0, p.stderr
+    return base / "run", ctrl, p
+
+
+def copy_run(sealed, tmp_path) -> Path:
+    dst = tmp_path / "run"
+    shutil.copytree(sealed[0], dst)
+    return dst
+
+
+# --- 1. a run folder can lie -----------------------------------------------------------------------
+@pytest.mark.parametrize("previous", ["complete run", "no folder"])
+def test_ctrl_c_leaves_the_previous_run_or_nothing(sealed, tmp_path, previous):
+    """SIGINT during `identify`: exit 130, one line saying so, the previous run byte for byte (or no folder)."""
+    run = copy_run(sealed, tmp_path) if previous == "complete run" else tmp_path / "run"
+    before = digest(run) if run.exists() else None
+    p = start("identify", "--out", run, "--seed", 1)
+    wait_for(lambda: list(tmp_path.glob(".run.staging-*")), p)
+    time.sleep(1.0)                                    # inside the simulation
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    lines = error_lines(err)
+    assert len(lines) == 1 and "interrupted" in lines[0] and "left as it was" in lines[0], err
+    assert "simulating the identification experiments" in err          # identify alone reports progress
+    if before is None:
+        assert not run.exists()
+    else:
+        assert digest(run) == before
+    assert sorted(q.name for q in tmp_path.iterdir()) == (["run"] if before is not None else [])  # no leftovers
+
+
+def test_second_writer_on_the_same_out_is_refused(sealed, tmp_path):
+    """Two writers on one --out: the second gets one line and exit 2 at once; the folder stays the first's."""
+    run = copy_run(sealed, tmp_path)
+    before = digest(run)
+    first = start("identify", "--out", run, "--seed", 1)
+    try:
+        wait_for((tmp_path / ".run.lock").exists, first)
+        t0 = time.monotonic()
+        second = nanosim("identify", "--out", run, "--seed", 2, timeout=60)
+        assert second.returncode == 2 and time.monotonic() - t0 < 30
+        lines = error_lines(second.stderr)
+        assert len(lines) == 1 and "another nanosim process" in lines[0] and str(first.pid) in lines[0], second.stderr
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.communicate(timeout=60)
+    assert first.returncode == 130 and digest(run) == before
+
+
+def test_manifest_seals_every_file(sealed):
+    run = sealed[0]
+    man = json.loads((run / "manifest.json").read_text())
+    assert set(man["files_sha256"]) == set(digest(run)) - {"manifest.json"}
+    assert man["seed"] == 3 and man["command"][1:3] == ["characterize", "--controller"]
+    assert man["nanosim_version"]
+
+
+def test_readers_refuse_a_folder_that_no_longer_matches_its_manifest(sealed, tmp_path, capsys):
+    run = copy_run(sealed, tmp_path)
+    rc, err = in_process(capsys, "report", "--run", run)
+    assert rc == 0 and (run / "report.html").is_file()
+    from nanosim.pipeline.runfolder import verify_manifest
+    verify_manifest(run)                                  # the rewritten report is sealed too
+    # a file added after sealing: report and --controller/--model from that folder are refused
+    zero_controller(run / "controller.npz")
+    rc, err = in_process(capsys, "report", "--run", run)
+    assert rc == 2 and len(err) == 1 and "controller.npz was added after the run was sealed" in err[0], err
+    rc, err = in_process(capsys, "characterize", "--controller", run / "controller.npz", "--out", tmp_path / "o")
+    assert rc == 2 and len(err) == 1 and err[0].startswith("nanosim characterize: error: --controller"), err
+    rc, err = in_process(capsys, "design", "--model", run / "controller.npz", "--out", tmp_path / "o")
+    assert rc == 2 and len(err) == 1 and "--model" in err[0], err
+    # a file changed after sealing: adding to the run (which would seal the change) is refused too
+    (run / "controller.npz").unlink()
+    (run / "metrics.json").write_text("{}")
+    rc, err = in_process(capsys, "characterize", "--controller", sealed[1], "--out", run, "--only", "small_steps")
+    assert rc == 2 and len(err) == 1 and "metrics.json changed after the run was sealed" in err[0], err
+    rc, err = in_process(capsys, "report", "--run", run)
+    assert rc == 2 and "metrics.json changed" in err[0]
+    (run / "metrics.json").unlink()
+    rc, err = in_process(capsys, "report", "--run", run)
+    assert rc == 2 and "metrics.json" in err[0] and "missing" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_sealed_run_for_compare_and_other_readers(sealed, tmp_path):
+    from nanosim.pipeline.runfolder import RunFolderError, sealed_run
+
+    run = copy_run(sealed, tmp_path)
+    r = sealed_run(run, required=("metrics.json",))
+    assert r.seed == 3 and "metrics.json" in r.files and r.command[1] == "characterize"
+    with pytest.raises(RunFolderError, match="design.json is not part of the sealed run"):
+        sealed_run(run, required=("design.json",))
+    (run / "metrics.json").write_text("{}")
+    with pytest.raises(RunFolderError, match="metrics.json changed"):
+        sealed_run(run)
+    with pytest.raises(RunFolderError, match="no manifest.json"):
+        sealed_run(tmp_path)
+
+
+def test_a_folder_that_is_not_a_run_is_never_replaced(tmp_path, capsys):
+    """`--out .` in a project folder must not move the user's files away (staged swap) nor seal them."""
+    (tmp_path / "notes.txt").write_text("mine")
+    ctrl = zero_controller(tmp_path / "c.npz")
+    rc, err = in_process(capsys, "characterize", "--controller", ctrl, "--out", tmp_path, "--only", "small_steps")
+    assert rc == 2 and len(err) == 1 and "not a nanosim run folder" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.npz", "notes.txt"]
+
+
+def test_a_killed_writer_leaves_nothing_that_survives_the_next_run(tmp_path):
+    """SIGKILL between the two renames of the swap: the next writer puts the previous run back first."""
+    from nanosim.pipeline.runfolder import staged_run
+
+    dead = 2 ** 22 + 12345                         # above the default pid_max of 4194304: never alive
+    (tmp_path / f".run.old-{dead}").mkdir()
+    (tmp_path / f".run.old-{dead}" / "a.txt").write_text("previous")
+    (tmp_path / f".run.staging-{dead}").mkdir()
+    with staged_run(tmp_path / "run", keep_existing=True) as stage:
+        assert (stage / "a.txt").read_text() == "previous"
+        (stage / "b.txt").write_text("new")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["a.txt", "b.txt", "manifest.json"]
+
+
+# --- 2. file-system errors: one line, exit 2, before any work ---------------------------------------
+@pytest.fixture
+def readonly_dir(tmp_path):
+    """A directory nobody can write in, also for root: a read-only tmpfs, else chattr +i, else mode 0555."""
+    d = tmp_path / "ro"
+    d.mkdir()
+    undo = None
+    if os.geteuid() != 0:
+        d.chmod(0o555)
+        undo = ["chmod", "755", str(d)]
+    elif subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(d)],
+                        capture_output=True).returncode == 0:
+        undo = ["umount", str(d)]
+    elif shutil.which("chattr") and subprocess.run(["chattr", "+i", str(d)], capture_output=True).returncode == 0:
+        undo = ["chattr", "-i", str(d)]
+    else:
+        pytest.skip("running as root without mount or chattr: cannot make a directory read-only")
+    assert not os.access(d, os.W_OK)
+    yield d
+    subprocess.run(undo, capture_output=True)
+
+
+def test_read_only_out_fails_at_once_with_one_line(readonly_dir):
+    t0 = time.monotonic()
+    p = nanosim("identify", "--out", readonly_dir / "run")
+    elapsed = time.monotonic() - t0
+    lines = error_lines(p.stderr)
+    assert p.returncode == 2 and len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert "--out" in lines[0] and ("read-only" in lines[0] or "permission" in lines[0])
+    assert "simulating" not in p.stderr and elapsed < 15      # fd62ecd: a traceback after 34 s of simulation
+    p = nanosim("modes", "--plot", readonly_dir / "plots")
+    assert p.returncode == 2 and len(error_lines(p.stderr)) == 1 and "--plot" in p.stderr
+
+
+def test_out_naming_a_file_and_plot_into_a_file(tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    for argv, name in ((("identify", "--out", afile), "--out"), (("modes", "--plot", afile), "--plot"),
+                       (("pipeline", "--out", afile), "--out")):
+        rc, err = in_process(capsys, *argv)
+        assert rc == 2 and len(err) == 1 and name in err[0] and "existing file" in err[0], err
+
+
+# --- 4. bad values: one line naming the argument, what was expected and what arrived ------------------
+@pytest.fixture
+def files(tmp_path):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<mujoco><worldbody><body></mujoco>")
+    rnd = tmp_path / "random.npz"
+    rnd.write_bytes(np.random.default_rng(0).bytes(2048))
+    return {"tmp": tmp_path, "out": tmp_path / "out", "bad": bad, "rnd": rnd, "dir": tmp_path,
+            "ctrl": zero_controller(tmp_path / "c.npz"), "ctrl1ms": zero_controller(tmp_path / "c1ms.npz", dt=1e-3)}
+
+
+BAD_VALUES = [
+    # (argv, words the single line must hold)
+    (("design", "--model", "{ctrl}", "--out", "{out}", "--reduced-order", "0"), ["--reduced-order", "got 0"]),
+    (("design", "--model", "{ctrl}", "--out", "{out}", "--damping-zeta", "-1"), ["--damping-zeta", "got -1"]),
+    (("pipeline", "--out", "{out}", "--reduced-order", "0"), ["--reduced-order", "got 0"]),
+    (("modes", "--fmax", "-5"), ["--fmax", "got -5"]),
+    (("modes", "--fmax", "nan"), ["--fmax", "got nan"]),
+    (("characterize", "--controller", "{ctrl1ms}", "--out", "{out}"), ["dt", "0.00025", "0.001"]),
+    (("identify", "--out", "{out}", "--seed", "-1"), ["--seed", "got -1"]),
+    (("characterize", "--controller", "{ctrl}", "--out", "{out}", "--seed", "-1"), ["--seed", "got -1"]),
+    (("modes", "--mjcf", "{bad}"), ["not a valid MuJoCo model", "line"]),
+    (("modes", "--mjcf", "{dir}"), ["--mjcf", "directory"]),
+    (("identify", "--out", "{out}", "--mjcf", "{dir}"), ["--mjcf", "directory"]),
+    (("design", "--model", "{rnd}", "--out", "{out}"), ["not an .npz file"]),
+    (("characterize", "--controller", "{rnd}", "--out", "{out}"), ["not an .npz file"]),
+    (("pipeline", "--out", "{out}", "--weights", "{tmp}/none.toml"), ["--weights", "no such file"]),
+    (("view", "--seconds", "-5"), ["--seconds", "-5"]),
+    (("view", "--seconds", "nan"), ["--seconds", "nan"]),
+    (("view", "--host", "999.1.1.1"), ["--host", "999.1.1.1"]),
+]
+
+
+@pytest.mark.parametrize("argv, words", BAD_VALUES, ids=[" ".join(a[:1] + a[-2:]) for a, _ in BAD_VALUES])
+def test_bad_values_one_line_exit_2_and_no_folder_left(files, capsys, argv, words):
+    argv = [a.format(**files) for a in argv]
+    rc, err = in_process(capsys, *argv)
+    assert rc == 2 and len(err) == 1, err
+    assert err[0].startswith(f"nanosim {argv[0]}: error: "), err[0]
+    for w in words:
+        assert w.lower() in err[0].lower(), (w, err[0])
+    assert "allow_pickle" not in err[0] and "busy" not in err[0]
+    assert not files["out"].exists()                       # fd62ecd left an empty --out behind
+
+
+def test_malformed_mjcf_keeps_mujocos_detail_line(files, capsys):
+    rc, err = in_process(capsys, "modes", "--mjcf", files["bad"])
+    assert rc == 2 and re.search(r"line( number)?\s*[=:]?\s*\d", err[0], re.I), err   # fd62ecd: "XML parse error 8:"
+
+
+def test_object_array_npz_is_refused_without_pickle_advice(tmp_path, capsys):
+    obj = tmp_path / "obj.npz"
+    np.savez(obj, a=np.array([{"x": 1}], dtype=object))
+    rc, err = in_process(capsys, "design", "--model", obj, "--out", tmp_path / "out")
+    assert rc == 2 and "object" in err[0] and "allow_pickle" not in err[0]
+
+
+def test_view_port_0_picks_a_free_port_and_prints_it():
+    p = nanosim("view", "--port", "0", "--seconds", "1", timeout=120)
+    assert p.returncode == 0, p.stderr
+    port = int(re.search(r"nanosim viewer on http://localhost:(\d+)", p.stdout).group(1))
+    assert 0 < port < 65536
+
+
+def test_pipeline_has_the_design_options():
+    args = build_parser().parse_args(["pipeline", "--out", "x", "--weights", __file__, "--reduced-order", "10",
+                                      "--damping-zeta", "0", "--paper-design"])
+    assert (args.weights, args.reduced_order, args.damping_zeta, args.paper_design) == (__file__, 10, 0.0, True)
+
+
+def test_order_0_chooses_the_order_from_the_singular_values(monkeypatch, tmp_path, capsys):
+    """`identify --order 0` (documented: choose from the singular values) reaches subspace_id as order=None,
+    which picks the true order of a 2-mode system (4 states) from noisy data."""
+    import identification as ident
+    import nanosim.pipeline.identify as pid
+    from nanosim.pipeline.config import IdentifyConfig
+
+    assert build_parser().parse_args(["identify", "--out", "x", "--order", "0"]).order == 0
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_identify_stage(settings, model=None, progress=None):
+        seen.append(settings.order_per_column)
+        raise Stop
+
+    monkeypatch.setattr(pid, "identify_stage", fake_identify_stage)
+    with pytest.raises(Stop):
+        pid.run_identify(tmp_path, IdentifyConfig(order=0))
+    assert seen == [None]
+    with pytest.raises(SystemExit):
+        main(["identify", "--help"])
+    assert "0: choose from the singular values" in " ".join(capsys.readouterr().out.split())
+    # a discrete 2-mode system (60 Hz and 300 Hz, zeta 0.02 and 0.05) at 4 kHz, measured with 1 % noise
+    fs, rng = 4000.0, np.random.default_rng(1)
+    poles = []
+    for f, z in ((60.0, 0.02), (300.0, 0.05)):
+        w = 2 * np.pi * f
+        poles += [np.exp((-z * w + 1j * w * np.sqrt(1 - z * z)) / fs)]
+    den = np.real(np.poly(np.concatenate([poles, np.conj(poles)])))
+    from scipy.signal import lfilter
+    u = rng.standard_normal(8000)
+    y = lfilter([0, 0.01, 0.02, 0.01], den, u)
+    y += 0.01 * np.std(y) * rng.standard_normal(y.size)
+    model = ident.subspace_id(y[:, None], u[:, None], order=None, fs=fs, max_order=12)
+    assert model.order == 4
+
+
+# --- 5. permissions ---------------------------------------------------------------------------------
+def test_artifacts_follow_the_umask(sealed):
+    run = sealed[0]
+    modes = {p.relative_to(run).as_posix(): p.stat().st_mode & 0o777 for p in run.rglob("*") if p.is_file()}
+    assert len(modes) >= 3 and set(modes.values()) == {0o644}, modes              # fd62ecd: 0600
+    assert (run.stat().st_mode & 0o777) == 0o755
+
+
+# --- 6. the report shows everything and agrees with itself --------------------------------------------
+def _fake_run(folder: Path, *, fail=False, drop=()):
+    """The json files of a run with chosen values (every band passes unless ``fail``)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    modes = {"modes": [{"freq_hz": f, "damping_ratio": 0.004 if not fail else 0.02, "axis": "XY"}
+                       for f in (176.3, 178.3, 244.5, 464.5, 471.1, 737.9, 1650.0)],
+             "static_gain_um_per_V": (3.0 * np.array([[-2.022, -1.19, 3.212], [2.542, -3.022, 0.48],
+                                                      [0.99, 0.99, 0.99]])).tolist(),
+             "constraint_violation_ratio": 0.0037}
+    ident = {"fit_percent": [[98.8, 99.4, 98.7], [99.1, 98.7, 99.5], [98.8, 98.5, 85.0 if fail else 98.5]],
+             "total_order": 39}
+    des = {"gamma": 1.18, "controller_order": 19, "S_peak_nominal": 1.23, "S_peak_full": 1.23,
+           "bandwidth_S_hz": 34.4, "bandwidth_T_hz": 62.0 if not fail else None}
+    met = {"bandwidth_S_hz": 28.1, "bandwidth_T_hz": 70.7, "step_2um": {"rise_ms": 3.5, "peak_ms": 7.0,
+           "settling_ms": 12.5 if not fail else 25.0, "overshoot_percent": 5.6},
+           "resolution_sigma_nm": {"open_loop": 11.6, "closed_loop": 1.6},
+           "hysteresis": {"open_loop_percent": 15.5, "closed_loop_nm": 13.0},
+           "creep": {"open_loop_drift_nm": 269.0, "closed_loop_drift_nm": 0.97},
+           "contouring": [{"speed_um_s": 1000.0, "mean_error_nm": 98.0, "max_error_nm": 342.0}],
+           "small_steps": {"plateau_means_nm": [0.0, 8.9, 20.5, 29.7, 39.9, 49.7]}}
+    for name, data in (("modes.json", modes), ("identify.json", ident), ("design.json", des),
+                       ("metrics.json", met)):
+        if name not in drop:
+            (folder / name).write_text(json.dumps(data))
+    return folder
+
+
+def _tool_count(run: Path) -> tuple[int, int]:
+    out = subprocess.run([sys.executable, str(COMPARE_TOOL), str(run)], capture_output=True, text=True).stdout
+    n_ok, n = re.search(r"(\d+) of (\d+) inside their bands", out).groups()
+    return int(n_ok), int(n)
+
+
+@pytest.mark.skipif(not COMPARE_TOOL.is_file(), reason="compare_to_paper.py is not beside the repository")
+@pytest.mark.parametrize("case", ["pass", "fail", "no design.json", "no metrics.json"])
+def test_report_counts_what_compare_to_paper_counts(tmp_path, case):
+    """fd62ecd: the report said 37 of 37 where compare_to_paper.py said 41 of 42."""
+    from nanosim.pipeline.report import pass_count, write_report
+
+    drop = {"no design.json": ("design.json",), "no metrics.json": ("metrics.json",)}.get(case, ())
+    run = _fake_run(tmp_path / "run", fail=case == "fail", drop=drop)
+    md, _ = write_report(run)
+    n_ok, n = pass_count(run)
+    assert (n_ok, n) == _tool_count(run)
+    assert f"{n_ok} of {n} checked quantities" in md.read_text()
+    assert (n_ok < n) == (case != "pass")
+
+
+def test_pipeline_final_line_names_the_report_and_the_report_count(monkeypatch, tmp_path, capsys):
+    import nanosim.pipeline.run as prun
+    from nanosim.pipeline.report import write_report
+
+    def fake_pipeline(out, cfg):
+        _fake_run(Path(out), fail=True)
+        write_report(out)
+
+    monkeypatch.setattr(prun, "run_pipeline", fake_pipeline)
+    assert main(["pipeline", "--out", str(tmp_path / "run")]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    n_ok, n = re.search(r"(\d+) of (\d+) checked quantities", line).groups()
+    assert str(tmp_path / "run" / "report.html") in line
+    assert f"{n_ok} of {n} checked quantities" in (tmp_path / "run" / "report.md").read_text()
+
+
+def test_report_shows_the_designs_own_warnings(tmp_path):
+    from nanosim.pipeline.report import write_report
+
+    run = _fake_run(tmp_path / "run")
+    des = json.loads((run / "design.json").read_text())
+    clean = dict(des, discretization_within_1_percent=True, Eo_max_dB_below_140Hz=-25.0,
+                 controller_fastest_pole_rad_s=5e4, closed_loop_min_damping_nominal=0.02)
+    (run / "design.json").write_text(json.dumps(clean))
+    md, page = write_report(run)
+    text = md.read_text()
+    assert "## Warnings" in text and "None:" in text.split("## Warnings")[1].split("##")[0]
+    bad = dict(des, discretization_within_1_percent=False, discretization_max_rel_error_below_500hz=0.034,
+               Eo_max_dB_below_140Hz=-15.27, controller_fastest_pole_rad_s=9.9e11,
+               closed_loop_min_damping_nominal=0.0037, closed_loop_min_damping_nominal_hz=474.3, stable_twin=False)
+    (run / "design.json").write_text(json.dumps(bad))
+    md, page = write_report(run)
+    warn = md.read_text().split("## Warnings")[1].split("\n## ")[0]
+    items = [ln for ln in warn.splitlines() if ln.startswith("- ")]
+    assert len(items) == 5, warn
+    for needle in ("3.4 %", "-15.3 dB", "-20 dB", "9.9e+11 rad/s", "0.0037 at 474 Hz", "UNSTABLE"):
+        assert needle in warn, needle
+    assert "design warning(s)" in md.read_text().splitlines()[2]
+    assert "<ul class='warn'>" in page.read_text()
+
+
+# --- 7. small things --------------------------------------------------------------------------------
+def test_version_and_python_m_nanosim(capsys):
+    import nanosim
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"nanosim {nanosim.__version__}"
+    p = subprocess.run([sys.executable, "-m", "nanosim", "--help"], capture_output=True, text=True, env=ENV)
+    assert p.returncode == 0
+    for cmd in ("modes", "identify", "design", "characterize", "pipeline", "report", "view"):
+        assert cmd in p.stdout
+
+
+def test_characterize_bar_names_the_running_experiment(sealed):
+    assert "running small_steps" in sealed[2].stderr
+
+
+def test_usage_errors_are_one_line(capsys):
+    rc, err = in_process(capsys, "identify")
+    assert rc == 2 and len(err) == 1 and "--out" in err[0] and "usage:" not in err[0]
+
+
+def test_weights_parse_toml_without_tomllib(tmp_path):
+    """Python 3.10 has no tomllib: weights.py falls back on tomli (pyproject: tomli for python < 3.11)."""
+    toml = tmp_path / "w.toml"
+    toml.write_text("[Wp]\nnum = [0.6667, 314.2]\nden = [1, 0.03142]\n[Wt]\nnum = [1, 314.2]\n"
+                    "den = [0.001, 628.3]\npower = 2\n[Wu]\nnum = [0.15]\nden = [1]\n")
+    code = ("import sys, types, tomllib\n"
+            "t = types.ModuleType('tomli'); t.loads = tomllib.loads; t.TOMLDecodeError = tomllib.TOMLDecodeError\n"
+            "sys.modules['tomli'] = t; sys.modules['tomllib'] = None   # import tomllib now fails as on 3.10\n"
+            "from nanosim.design.weights import Weights\n"
+            f"w = Weights.from_file({str(toml)!r}); print(w.Wt.power, w.Wu.num)\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=ENV)
+    assert p.returncode == 0 and p.stdout.split()[0] == "2", p.stderr
+    pyproject = (Path(__file__).resolve().parents[1] / "pyproject.toml").read_text()
+    assert re.search(r'"tomli[^"]*;\s*python_version\s*<\s*.3\.11.', pyproject)
+    assert 'requires-python = ">=3.10"' in pyproject
+
+
+# --- 3. the package installs -------------------------------------------------------------------------
+@pytest.mark.slow
+def test_wheel_installs_and_runs_in_a_fresh_venv(tmp_path):
+    """Build the wheel from a copy of the sources, install it into a new venv, run `nanosim modes --json`."""
+    root = Path(__file__).resolve().parents[1]
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy2(root / name, src / name)
+    skip = shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info")
+    for pkg in ("nanosim", "identification"):
+        shutil.copytree(root / pkg, src / pkg, ignore=skip)
+    wheels = tmp_path / "wheels"
+    p = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(wheels), str(src)],
+                       capture_output=True, text=True, timeout=600)
+    if p.returncode and ("network" in p.stderr.lower() or "connection" in p.stderr.lower()):
+        pytest.skip(f"cannot fetch the build backend: {p.stderr.strip().splitlines()[-1]}")
+    assert p.returncode == 0, p.stderr
+    (whl,) = wheels.glob("nanosim-*.whl")
+    import zipfile
+    names = zipfile.ZipFile(whl).namelist()
+    assert "nanosim/mjcf/scene.xml" in names and "nanosim/mjcf/pkxyz_stage.xml" in names
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True, timeout=300)
+    py = venv / "bin" / "python"
+    p = subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-index", "--no-build-isolation", str(whl)],
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    cwd = tmp_path / "elsewhere"
+    cwd.mkdir()
+    env = {k: v for k, v in ENV.items() if k != "PYTHONPATH"}
+    p = subprocess.run([str(py), "-c", "import nanosim; print(nanosim.__file__)"], capture_output=True, text=True,
+                       cwd=cwd, env=env)
+    assert Path(p.stdout.strip()).resolve().is_relative_to(venv.resolve()), p.stdout   # not the repository
+    p = subprocess.run([str(venv / "bin" / "nanosim"), "modes", "--json"], capture_output=True, text=True, cwd=cwd,
+                       env=env, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert len(json.loads(p.stdout)["modes"]) == 6
