@@ -63,6 +63,12 @@ def sha256_file(path: Path) -> str:
     return h.hexdigest()
 
 
+def _sealable_files(folder: Path) -> list[str]:
+    """Files a manifest lists: every file but the manifest itself and hidden (temporary) files."""
+    return [p.relative_to(folder).as_posix() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != MANIFEST_JSON and not p.name.startswith(".")]
+
+
 def write_manifest(folder: Path, *, seed=None, command=None, history=()) -> Path:
     """Write ``manifest.json`` last: sha256 of every other file, seed, version, command line.
 
@@ -71,10 +77,7 @@ def write_manifest(folder: Path, *, seed=None, command=None, history=()) -> Path
     """
     from nanosim import __version__
 
-    files = {}
-    for p in sorted(folder.rglob("*")):
-        if p.is_file() and p.name != MANIFEST_JSON and not p.name.startswith("."):
-            files[p.relative_to(folder).as_posix()] = sha256_file(p)
+    files = {rel: sha256_file(folder / rel) for rel in _sealable_files(folder)}
     return write_json(folder / MANIFEST_JSON, {
         "nanosim_version": __version__, "seed": seed,
         "command": command if command is not None else [Path(sys.argv[0]).name, *sys.argv[1:]],
@@ -108,6 +111,10 @@ def verify_manifest(folder: str | os.PathLike, required: tuple[str, ...] = ()) -
             raise RunFolderError(f"run folder {str(folder)!r}: {rel} is listed in the manifest but missing")
         if sha256_file(p) != digest:
             raise RunFolderError(f"run folder {str(folder)!r}: {rel} changed after the run was sealed")
+    extra = sorted(set(_sealable_files(folder)) - set(files))
+    if extra:
+        raise RunFolderError(f"run folder {str(folder)!r}: {extra[0]} was added after the run was sealed"
+                             + (f" (and {len(extra) - 1} more)" if len(extra) > 1 else ""))
     return man
 
 
