@@ -13,14 +13,13 @@ from nanosim import experiments
 from nanosim.design.controller import ControllerConfig, DiscreteController
 from nanosim.experiments import bandwidth as bw_mod
 from nanosim.experiments import creep as creep_mod
-from nanosim.experiments import hysteresis as hyst_mod
 from nanosim.experiments import resolution as res_mod
-from nanosim.experiments import small_steps as ss_mod
 from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
 from nanosim.experiments.batch_suite import MemberPlant, run_experiments_batch
 from nanosim.experiments.loop import run_closed_loop
 from nanosim.experiments.registry import Experiment, ExperimentContext, register, unregister
 from nanosim.plant.batch import BatchMujocoStage, BatchTwinStage
+from nanosim.plant.floor import floor_model
 from nanosim.plant.linearize import linearize
 from nanosim.plant.modes import modal_analysis
 from nanosim.plant.stage import Stage, StageConfig
@@ -52,7 +51,8 @@ def plants():
     for i in (0, 1):
         m = sample_model(tm.sample(0, i), tm)
         out.append(dict(model=m, twin=linearize(Stage(config=StageConfig.ideal(), model=m)),
-                        home=Stage(model=m).table_um.copy(), G0=modal_analysis(m).static_gain_um_per_V))
+                        home=Stage(model=m).table_um.copy(), G0=modal_analysis(m).static_gain_um_per_V,
+                        floor=floor_model(m)))
     return out
 
 
@@ -68,9 +68,9 @@ def test_twin_open_loop_bitwise(plants):
     p = plants[0]
     u = 1.5 + np.cumsum(np.random.default_rng(3).standard_normal((3, 700, 3)) * 0.05, axis=1)
     seeds = [0, 4, 9]
-    traces = BatchTwinStage([p["twin"]] * 3, seeds, home_um=p["home"]).run(u)
+    traces = BatchTwinStage([p["twin"]] * 3, seeds, home_um=p["home"], floor_models=p["floor"]).run(u)
     for b, s in enumerate(seeds):
-        ref = TwinStage(p["twin"], seed=s, home_um=p["home"]).run(u[b])
+        ref = TwinStage(p["twin"], seed=s, home_um=p["home"], floor_model=p["floor"]).run(u[b])
         for k in ref.__dataclass_fields__:
             assert np.array_equal(getattr(ref, k), getattr(traces[b], k)), (b, k)
 
@@ -79,11 +79,12 @@ def test_twin_open_loop_bitwise(plants):
 def test_twin_closed_loop_bitwise_per_member_plants_and_seeds(plants, two_dof):
     ctrls = [_controller(p["G0"], two_dof) for p in plants]
     seeds = [2, 7]
-    stage = BatchTwinStage([p["twin"] for p in plants], seeds, home_um=np.array([p["home"] for p in plants]))
+    stage = BatchTwinStage([p["twin"] for p in plants], seeds, home_um=np.array([p["home"] for p in plants]),
+                           floor_models=[p["floor"] for p in plants])
     traces = run_closed_loop_batch(stage, BatchController(ctrls), _ref(), settle_s=0.1)
     for b, (p, s) in enumerate(zip(plants, seeds)):
-        ref = run_closed_loop(TwinStage(p["twin"], seed=s, home_um=p["home"]), DiscreteController(ctrls[b]), _ref(),
-                              settle_s=0.1)
+        ref = run_closed_loop(TwinStage(p["twin"], seed=s, home_um=p["home"], floor_model=p["floor"]),
+                              DiscreteController(ctrls[b]), _ref(), settle_s=0.1)
         for k in FIELDS:
             assert np.array_equal(getattr(ref, k), getattr(traces[b], k)), (b, k)
 
@@ -136,13 +137,13 @@ def test_controller_bank_pads_orders_and_checks_members(plants):
 
 # --- the registered experiments, run in lockstep -----------------------------------------------------
 SHORT = {
-    "t_hysteresis": lambda ctx: hyst_mod.hysteresis(ctx.factory, ctx.controller, seed=ctx.seed, duration_s=0.4,
-                                                    levels=4, dwell_s=0.03),
     "t_creep": lambda ctx: creep_mod.creep(ctx.factory, ctx.controller, ctx.static_gain_um_per_V, seed=ctx.seed,
                                            hold_s=0.6),
-    "t_resolution": lambda ctx: res_mod.resolution(ctx.factory, ctx.controller, seed=ctx.seed, duration_s=0.6),
+    "t_resolution": lambda ctx: res_mod.resolution(ctx.factory, ctx.controller, seed=ctx.seed, duration_s=0.6,
+                                                   budget=False),
+    "t_budget": lambda ctx: res_mod.noise_budget(ctx.factory(ctx.seed), ctx.controller, seed=ctx.seed + 1,
+                                                 duration_s=0.1),          # Stage.variant in a batch
     "t_bandwidth": lambda ctx: bw_mod.bandwidth(ctx.factory, ctx.controller, seed=ctx.seed, duration_s=1.1),
-    "t_small_steps": lambda ctx: ss_mod.small_steps(ctx.factory, ctx.controller, seed=ctx.seed, dwell_s=0.05),
 }
 
 
@@ -151,8 +152,8 @@ def short_experiments():
     experiments.load_builtin()
     names = []
     for name, run in SHORT.items():
-        real = experiments.get(name[2:])
-        register(Experiment(name, run=run, metrics=real.metrics))
+        metrics = (lambda r: {"noise_budget": r}) if name == "t_budget" else experiments.get(name[2:]).metrics
+        register(Experiment(name, run=run, metrics=metrics))
         names.append(name)
     yield names
     for n in names:
@@ -161,12 +162,14 @@ def short_experiments():
 
 def test_registered_experiments_in_lockstep_equal_single_runs(plants, short_experiments):
     ctrl = _controller(plants[0]["G0"], True)
-    members = [MemberPlant(twin=p["twin"], home_um=p["home"], static_gain_um_per_V=p["G0"]) for p in plants]
+    members = [MemberPlant(twin=p["twin"], model=p["model"], home_um=p["home"], static_gain_um_per_V=p["G0"])
+               for p in plants]
     metrics, _ = run_experiments_batch(short_experiments, members, ctrl, seed=3, exact=True)
     for b, p in enumerate(plants):
         single = {}
         for name in short_experiments:
-            ctx = ExperimentContext(factory=lambda s, p=p: TwinStage(p["twin"], seed=s, home_um=p["home"]),
+            ctx = ExperimentContext(factory=lambda s, p=p: TwinStage(p["twin"], seed=s, home_um=p["home"],
+                                                                     floor_model=p["floor"]),
                                     controller=DiscreteController(ctrl), seed=3, static_gain_um_per_V=p["G0"])
             exp = experiments.get(name)
             single.update(exp.metrics(exp.run(ctx)))

@@ -118,7 +118,10 @@ class BatchController:
             self._xe[b, ns:, 0] = 0.0
 
     def feedback(self, reference_V: np.ndarray, measurement_V: np.ndarray) -> np.ndarray:
-        """One sample of every loop: ``e = r - y`` (and ``y``) -> commands ``(B, n_out)``."""
+        """One sample of every loop: ``e = r - y`` (and ``y``) -> commands ``(B, n_out)``.
+
+        The result is a view of an internal buffer, valid until the next call (copy it to keep it).
+        """
         ns, ne = self.n_states, self.n_error
         xe = self._xe[:, :, 0]
         xe[:, ns:ns + ne] = reference_V - measurement_V
@@ -129,7 +132,7 @@ class BatchController:
         else:
             out = np.matmul(self._M, self._xe, out=self._out)[:, :, 0]
         xe[:, :ns] = out[:, :ns]
-        return out[:, ns:].copy()
+        return out[:, ns:]          # a view of a buffer the next call overwrites
 
 
 def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle: bool = True,
@@ -170,16 +173,17 @@ def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle:
             r = start + w[k] * (ref[:, 0] - start)
             y = stage.step(controller.feedback(r / UM_PER_V, y))
     n = ref.shape[1]
-    ys, tb, us = (np.empty((n, nb, 3)) for _ in range(3))
+    yv, tb, us = (np.empty((n, nb, 3)) for _ in range(3))
     sat = np.empty((n, nb, 3), dtype=bool)
-    rv = ref / UM_PER_V
+    rv = np.ascontiguousarray(np.swapaxes(ref, 0, 1)) / UM_PER_V      # (N, B, 3): rv[k] contiguous
     for k in range(n):
-        u = controller.feedback(np.ascontiguousarray(rv[:, k]), y)
-        ys[k] = y * UM_PER_V
+        u = controller.feedback(rv[k], y)
+        yv[k] = y
         tb[k] = stage.table_um
         us[k] = u
         y = stage.step(u)
         sat[k] = stage.last_saturated
+    ys = yv * UM_PER_V                        # the same product per element as the single loop's y * UM_PER_V
     t = np.arange(n) / FS
     return [LoopTrace(t_s=t, ref_um=np.array(ref[b]), y_um=ys[:, b].copy(), table_um=tb[:, b].copy(),
                       u_V=us[:, b].copy(), saturated=sat[:, b].copy()) for b in range(nb)]

@@ -26,8 +26,11 @@ import numpy as np
 from nanosim.experiments import registry
 from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
 from nanosim.experiments.registry import ExperimentContext
+from nanosim import constants as C
 from nanosim.plant.batch import BatchMujocoStage, BatchTwinStage
 from nanosim.plant.electronics import SensorSample
+from nanosim.plant.floor import floor_model
+from nanosim.plant.stage import StageConfig
 
 __all__ = ["MemberPlant", "BatchDivergence", "run_experiments_batch"]
 
@@ -41,7 +44,8 @@ class MemberPlant:
     twin : LinearTwin or TwinMatrices or None
         Discrete linear twin (engine ``"twin"``).
     model : mujoco.MjModel or None
-        Compiled stage (engine ``"mujoco"``).
+        Compiled stage: engine ``"mujoco"``, and the floor vibration of a twin (as
+        ``characterize --twin``: the floor model of the MuJoCo stage the twin came from).
     home_um : ndarray, shape (3,)
         Noise-free reading at home (the MuJoCo stage's ``table_um``).
     static_gain_um_per_V : ndarray, shape (3, 3) or None
@@ -144,9 +148,13 @@ class _SensorsMember:
 class _StageMember:
     """Member ``b``'s ``k``-th stage; every call is a request to the batch."""
 
-    def __init__(self, suite: "_Suite", member: int, key: int, seed: int):
-        self._suite, self.member, self.key, self.seed = suite, member, key, seed
+    def __init__(self, suite: "_Suite", member: int, key: int, seed: int, config):
+        self._suite, self.member, self.key, self.seed, self.config = suite, member, key, seed, config
         self.sensors = _SensorsMember(self)
+
+    def variant(self, config, seed: int | None = None) -> "_StageMember":
+        """A fresh stage of this member with other electromechanics (``Stage.variant``)."""
+        return self._suite.new_stage(self.member, self.seed if seed is None else seed, config)
 
     def _request(self, op, *args):
         return self._suite.lockstep.call(_Request(self.member, op, self.key, args))
@@ -169,28 +177,31 @@ class _StageMember:
 class _Suite:
     """One experiment on B members: stage groups (one per factory call index), one controller bank."""
 
-    def __init__(self, plants, bank: BatchController, make_stage):
-        self.plants, self.bank, self.make_stage = plants, bank, make_stage
+    def __init__(self, plants, bank: BatchController, make_stage, config):
+        self.plants, self.bank, self.make_stage, self.config = plants, bank, make_stage, config
         self.n = len(plants)
         self.lockstep = _Lockstep(self.n, self._execute)
         self.groups: dict[int, Any] = {}
         self._calls = [0] * self.n
-        self._seeds: dict[int, dict[int, int]] = {}
+        self._made: dict[int, dict[int, tuple]] = {}
+
+    def new_stage(self, member: int, seed: int, config) -> _StageMember:
+        key = self._calls[member]
+        self._calls[member] += 1
+        self._made.setdefault(key, {})[member] = (int(seed), config)
+        return _StageMember(self, member, key, seed, config)
 
     def factory(self, member: int):
-        def make(seed: int):
-            key = self._calls[member]
-            self._calls[member] += 1
-            self._seeds.setdefault(key, {})[member] = int(seed)
-            return _StageMember(self, member, key, seed)
-        return make
+        return lambda seed: self.new_stage(member, seed, self.config)
 
     def _group(self, key: int):
         if key not in self.groups:
-            seeds = self._seeds[key]
-            if len(seeds) != self.n:
-                raise BatchDivergence(f"stage {key} was made by {len(seeds)} of {self.n} members")
-            self.groups[key] = self.make_stage([seeds[b] for b in range(self.n)])
+            made = self._made[key]
+            configs = {c for _, c in made.values()}           # frozen dataclasses: equal configs hash alike
+            if len(made) != self.n or len(configs) != 1:
+                raise BatchDivergence(f"stage {key} was made by {len(made)} of {self.n} members "
+                                      f"with {len(configs)} configurations")
+            self.groups[key] = self.make_stage([made[b][0] for b in range(self.n)], made[0][1])
         return self.groups[key]
 
     def _execute(self, reqs: list) -> None:
@@ -241,17 +252,17 @@ class _Suite:
                 close()
 
 
-def _run_one(exp, plants, controllers, make_stage, seed, exact):
+def _run_one(exp, plants, controllers, make_stage, seeds, exact, config):
     """Run ``exp`` on every member together; returns per-member results (exceptions in place of failures)."""
     n = len(plants)
     bank = BatchController(controllers, n=n, exact=exact) if not isinstance(controllers, list) \
         else BatchController(controllers, exact=exact)
-    suite = _Suite(plants, bank, make_stage)
+    suite = _Suite(plants, bank, make_stage, config)
     results: list = [None] * n
 
     def work(b):
         try:
-            ctx = ExperimentContext(factory=suite.factory(b), controller=_ControllerMember(bank, b), seed=seed,
+            ctx = ExperimentContext(factory=suite.factory(b), controller=_ControllerMember(bank, b), seed=seeds[b],
                                     static_gain_um_per_V=plants[b].static_gain_um_per_V,
                                     base_stage=plants[b].base_stage)
             results[b] = exp.run(ctx)
@@ -272,7 +283,7 @@ def _run_one(exp, plants, controllers, make_stage, seed, exact):
 
 
 def run_experiments_batch(names: Sequence[str], plants: Sequence[MemberPlant], controllers, *, engine: str = "twin",
-                          seed: int = 0, config=None, exact: bool = False, nthread: int | None = None,
+                          seed=0, config=None, exact: bool = False, nthread: int | None = None,
                           progress: Callable[[str], None] | None = None) -> tuple[list[dict], list[dict]]:
     """Run registered experiments on every member at once.
 
@@ -285,9 +296,9 @@ def run_experiments_batch(names: Sequence[str], plants: Sequence[MemberPlant], c
     controllers : ControllerConfig or DiscreteController, or a list of one per member
     engine : {"twin", "mujoco"}
         Linear twins (``plants[b].twin``) or MuJoCo stages (``plants[b].model``).
-    seed : int
-        Experiment seed of every member (``ExperimentContext.seed``): every member sees
-        the same noise, so members differ by their plants only.
+    seed : int or sequence of int
+        Experiment seed (``ExperimentContext.seed``) of every member, or one per member. One
+        seed for all: every member sees the same noise, so members differ by their plants only.
     config : StageConfig, optional
         Electromechanics (default: every effect on).
     exact : bool
@@ -307,6 +318,9 @@ def run_experiments_batch(names: Sequence[str], plants: Sequence[MemberPlant], c
         Per member, ``{name: result object}``.
     """
     plants = list(plants)
+    seeds = [int(seed)] * len(plants) if isinstance(seed, (int, np.integer)) else [int(x) for x in seed]
+    if len(seeds) != len(plants):
+        raise ValueError(f"seed: expected one seed or {len(plants)} (one per plant), got {len(seeds)}")
     if engine not in ("twin", "mujoco"):
         raise ValueError(f"engine: expected 'twin' or 'mujoco', got {engine!r}")
     if isinstance(controllers, (list, tuple)):
@@ -314,26 +328,30 @@ def run_experiments_batch(names: Sequence[str], plants: Sequence[MemberPlant], c
         if len(controllers) != len(plants):
             raise ValueError(f"controllers: expected {len(plants)} (one per plant), got {len(controllers)}")
 
+    config = config or StageConfig()
+
     def make_stage_for(members):
-        def make(seeds):
+        def make(stage_seeds, cfg):
             ps = [plants[b] for b in members]
             if engine == "twin":
-                return BatchTwinStage([p.twin for p in ps], seeds, config=config,
+                floors = [floor_model(p.model, C.CONTROL_PERIOD_S) for p in ps] \
+                    if all(p.model is not None for p in ps) else None
+                return BatchTwinStage([p.twin for p in ps], stage_seeds, config=cfg,
                                       home_um=np.array([p.home_um if p.home_um is not None else np.zeros(3)
-                                                        for p in ps]), exact=exact)
-            return BatchMujocoStage([p.model for p in ps], seeds, config=config, nthread=nthread)
+                                                        for p in ps]), exact=exact, floor_models=floors)
+            return BatchMujocoStage([p.model for p in ps], stage_seeds, config=cfg, nthread=nthread)
         return make
 
     metrics: list[dict] = [{} for _ in plants]
     results: list[dict] = [{} for _ in plants]
     for name in names:
         exp = registry.get(name)
-        out = _run_one(exp, plants, controllers, make_stage_for(range(len(plants))), seed, exact)
+        out = _run_one(exp, plants, controllers, make_stage_for(range(len(plants))), seeds, exact, config)
         if any(isinstance(r, BatchDivergence) for r in out):
             out = []
             for b in range(len(plants)):      # one member at a time: same numbers, no batching
                 ctl = [controllers[b]] if isinstance(controllers, list) else controllers
-                out += _run_one(exp, [plants[b]], ctl, make_stage_for([b]), seed, exact)
+                out += _run_one(exp, [plants[b]], ctl, make_stage_for([b]), [seeds[b]], exact, config)
         for b, r in enumerate(out):
             if isinstance(r, BaseException):
                 if isinstance(r, (KeyboardInterrupt, SystemExit)):

@@ -31,8 +31,10 @@ import numpy as np
 
 from nanosim import constants as C
 from nanosim.plant.batch_electronics import BatchElectronics, BatchReading
+from nanosim.plant.floor import FloorConfig, floor_model
 from nanosim.plant.mechanics import home_data
 from nanosim.plant.mjcf import custom_numeric, probe_layout
+from nanosim.plant.noise import NormalStream, child_seed
 from nanosim.plant.stage import StageConfig, Trace
 from nanosim.validation import as_finite_array
 
@@ -46,6 +48,48 @@ def _seeds(seeds) -> list:
     if not seeds:
         raise ValueError("seeds: expected at least one seed (one per batch member), got none")
     return seeds
+
+
+_FLOOR_STREAM = 4            # nanosim.plant.floor.FloorVibration's child stream (electronics docstring)
+_FLOOR_CHUNK = 4096
+
+
+class _BatchFloor:
+    """Floor vibration of B members (:class:`nanosim.plant.floor.FloorVibration` vectorized).
+
+    Per member: the base acceleration from its own seed (stream 4, drawn in chunks) and its own
+    floor model; ``x+ = Ad x + Bd a``, displacement ``Cd x+`` (stacked products, one ``gemv`` per member).
+    """
+
+    def __init__(self, models, config: FloorConfig, seeds):
+        self.active = config.enabled and config.accel_psd_m2_s4_Hz > 0
+        self._seeds = list(seeds)
+        if not self.active:
+            return
+        self._Ad = np.stack([m.Ad for m in models])
+        self._Bd = np.stack([m.Bd for m in models])
+        self._Cd = np.stack([m.Cd for m in models])
+        self._sigma = [float(np.sqrt(config.accel_psd_m2_s4_Hz / (2.0 * m.dt_s))) for m in models]
+        self.reset()
+
+    def reset(self) -> None:
+        if not self.active:
+            return
+        self._x = np.zeros(self._Ad.shape[:2] + (1,))
+        self._streams = [NormalStream(child_seed(s, _FLOOR_STREAM), 3) for s in self._seeds]
+        self._buf = np.empty((0, len(self._seeds), 3, 1))
+        self._i = 0
+
+    def step(self) -> np.ndarray:
+        """Displacement ``(B, 3)`` um at the end of the next period."""
+        if self._i == len(self._buf):
+            self._buf = np.stack([sg * st.take(_FLOOR_CHUNK) for sg, st in zip(self._sigma, self._streams)],
+                                 axis=1)[..., None]
+            self._i = 0
+        a = self._buf[self._i]
+        self._i += 1
+        self._x = np.matmul(self._Ad, self._x) + np.matmul(self._Bd, a)
+        return np.matmul(self._Cd, self._x)[:, :, 0]
 
 
 class _BatchStageBase:
@@ -62,6 +106,8 @@ class _BatchStageBase:
     def reset(self) -> None:
         """Home state, virgin piezos, noise streams rewound (every member)."""
         self.electronics = BatchElectronics(self.config.electronics, self.config.piezo, self.seeds)
+        self.floor = _BatchFloor(self._floor_models, self.config.floor, self.seeds) if self._floor_models \
+            else None
         self.time_s = 0.0
         self.last_piezo_V = np.zeros((self.n, 3))
         self.last_saturated = np.zeros((self.n, 3), dtype=bool)
@@ -79,6 +125,7 @@ class _BatchStageBase:
             u = as_finite_array("u_V", u_V, shape=(self.n, 3))
         _, v_piezo, v_free, sat = self.electronics.actuate(u)
         self._advance(v_free)
+        self._add_floor()
         self.time_s += self.dt_s
         sens = self.electronics.read(self.table_um)
         self.last_piezo_V, self.last_saturated, self.last_clipped = v_piezo, sat, sens.clipped
@@ -97,6 +144,7 @@ class _BatchStageBase:
         for k in range(n):
             _, v_piezo, v_free, s = self.electronics.actuate(np.ascontiguousarray(u[:, k]))
             self._advance(v_free)
+            self._add_floor()
             self.time_s += self.dt_s
             sens = self.electronics.read(self.table_um)
             pz[k], sat[k], tb[k], yv[k], yu[k], cl[k] = v_piezo, s, self.table_um, sens.reading_V, \
@@ -106,6 +154,10 @@ class _BatchStageBase:
         return [Trace(t_s=t, u_V=np.array(u[b]), piezo_V=pz[:, b].copy(), saturated=sat[:, b].astype(bool),
                       table_um=tb[:, b].copy(), sensor_V=yv[:, b].copy(), sensor_um=yu[:, b].copy(),
                       clipped=self._trace_clipped(cl[:, b].astype(bool))) for b in range(self.n)]
+
+    def _add_floor(self) -> None:
+        if self.floor is not None and self.floor.active:
+            self.table_um = self.table_um + self.floor.step()
 
     # subclass hooks
     def _reset_mechanics(self) -> None:
@@ -167,6 +219,9 @@ class BatchTwinStage(_BatchStageBase):
         Electromechanics (default: every effect on).
     home_um : array_like, shape (3,) or (B, 3), optional
         Reading at home (the MuJoCo stage's ``table_um``); default 0.
+    floor_models : FloorModel or list of B, optional
+        Floor vibration (:func:`nanosim.plant.floor.floor_model` of the MuJoCo model each twin
+        came from), as ``TwinStage(floor_model=...)``; None: no floor vibration.
     exact : bool
         True (default): the twin's products are those of ``TwinStage`` (one ``gemv``
         per member and matrix), bit for bit. False: ``[x+; y] = [[A, B], [C A, C B + D]] [x; v]``
@@ -175,8 +230,13 @@ class BatchTwinStage(_BatchStageBase):
     """
 
     def __init__(self, twins, seeds: Sequence[int], config: StageConfig | None = None, home_um=None,
-                 exact: bool = True):
+                 exact: bool = True, floor_models=None):
         self._init_common(seeds, config)
+        if floor_models is not None and not isinstance(floor_models, (list, tuple)):
+            floor_models = [floor_models] * self.n
+        if floor_models is not None and len(floor_models) != self.n:
+            raise ValueError(f"floor_models: expected {self.n} (one per seed), got {len(floor_models)}")
+        self._floor_models = floor_models
         self.per_member, (A, B, Cm, D) = _stack_twins(twins, self.n)
         self._A, self._B, self._C, self._D = A, B, Cm, D     # (n, n) shared or (B, n, n) stacks
         self.exact = bool(exact)
@@ -254,6 +314,7 @@ class BatchMujocoStage(_BatchStageBase):
         if len(ms) != self.n:
             raise ValueError(f"models: expected {self.n} models (one per seed), got {len(ms)}")
         self.models = ms
+        self._floor_models = [floor_model(m, self.dt_s) for m in ms] if self.config.floor.enabled else None
         dt_model = {m.opt.timestep for m in ms}
         ratio = self.dt_s / ms[0].opt.timestep
         self.substeps = int(round(ratio))

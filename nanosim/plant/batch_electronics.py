@@ -12,10 +12,18 @@ bit-for-bit the numbers of a single stage with seed ``seeds[b]``
 (``tests/test_batch.py`` holds that contract: a change to the single-stage
 chains that is not mirrored here fails it).
 
-Noise: each member's DAC and gauge noise is drawn by a single-stage chain
-built from that member's seed with every other effect off, so its output is
-exactly the noise term the single stage adds (same generator, same block
-draws, same low-pass filter); it is added where the single stage adds it.
+The chain (``ActuatorChain.step``, ``SensorChain.step``): computation delay
+(:class:`~nanosim.plant.filters.DelayLine`), DAC quantiser, DAC noise (white and
+flicker), input-referred amplifier noise, saturation, gain, amplifier lag
+(:class:`~nanosim.plant.filters.AmplifierLag`), hysteresis, creep; gauge filter
+(:class:`~nanosim.plant.filters.SampledFilter`), gauge noise, clip, ADC. The
+filters are the single-stage classes on ``3 B`` channels.
+
+Noise: each member's DAC noise, amplifier noise and gauge noise are drawn by
+single-stage chains built from that member's seed with every other effect off
+(amplifier gain 1 for the amplifier noise), so their outputs are exactly the
+noise terms the single stage adds (same generators, same block draws, same
+shaping filters); they are added where the single stage adds them.
 """
 from __future__ import annotations
 
@@ -25,6 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from nanosim.plant.electronics import ActuatorChain, ElectronicsConfig, SensorChain
+from nanosim.plant.filters import AmplifierLag, DelayLine, SampledFilter, butterworth_lowpass
 from nanosim.plant.piezo import PiezoConfig
 
 __all__ = ["BatchElectronics", "BatchReading"]
@@ -94,7 +103,11 @@ class BatchElectronics:
         self._lo, self._hi = e.command_range_V
         self._gain = e.amplifier_gain
         sigma = e.dac_noise_V if e.dac_noise else 0.0
-        margin = 20.0 * sigma
+        flick = e.dac_flicker_V_per_rtHz
+        sigma_amp = e.amplifier_noise_V if e.amplifier_noise else 0.0
+        margin = 20.0 * (sigma + sigma_amp + 3.5 * flick)
+        self._delay = DelayLine(e.computation_delay_samples, nch)
+        self._lag = AmplifierLag(e.amplifier_bandwidth_Hz, e.dt_s, nch)
         self._dac_clip_implied = (self._quant and self._center + self._code_lo * self._lsb + margin < self._lo
                                   and self._hi < self._center + self._code_hi * self._lsb - margin)
         # piezo (PrandtlIshlinskii, KelvinVoigtCreep)
@@ -105,6 +118,8 @@ class BatchElectronics:
             self._r = np.asarray(p.pi_thresholds_V, dtype=float).copy()
             self._z0 = np.zeros((nch, self._r.size))
             self._zw = np.empty_like(self._z0)
+            self._pm_r = np.stack([-self._r, self._r])
+            self._band = np.empty((nch, 2, self._r.size))
         self._creep = p.creep
         if self._creep:
             c = np.asarray(p.creep_gains, dtype=float)
@@ -115,7 +130,9 @@ class BatchElectronics:
             self._sc_col = np.array([self._scale * float(ck) for ck in c])[:, None]
             self._x0 = np.zeros((c.size, nch))
             self._terms = np.empty((c.size + 1, nch))
-        # gauge and ADC (SensorChain._convert)
+        # gauge filter, gauge and ADC (SensorChain.step)
+        self._gauge_filter = (SampledFilter(*butterworth_lowpass(e.gauge_bandwidth_Hz, e.gauge_filter_order),
+                                            e.dt_s, nch) if e.gauge_bandwidth_Hz is not None else None)
         self._clip = e.sensor_clip
         self._range = e.sensor_range_um
         self._um_per_V = e.sensor_um_per_V
@@ -125,12 +142,18 @@ class BatchElectronics:
             self._adc_lsb_um = self._adc_lsb * self._um_per_V
             self._adc_lo = -float(2 ** (e.adc_bits - 1))
             self._adc_hi = float(2 ** (e.adc_bits - 1) - 1)
-        quiet = dict(dac_quantization=False, saturation=False, sensor_clip=False, adc_quantization=False)
-        self._dac_noise = self._gauge_noise = None
-        if sigma > 0.0:
-            dac_cfg = replace(e, sensor_noise=False, **quiet)
+        quiet = dict(dac_quantization=False, saturation=False, sensor_clip=False, adc_quantization=False,
+                     computation_delay_samples=0, amplifier_bandwidth_Hz=None)
+        self._dac_noise = self._amp_noise = self._gauge_noise = None
+        if sigma > 0.0 or flick > 0.0:          # u_dac = 0 + (white + flicker)
+            dac_cfg = replace(e, sensor_noise=False, amplifier_noise=False, **quiet)
             self._dac_noise = _NoiseTerms(lambda s: ActuatorChain(dac_cfg, PiezoConfig.linear(), seed=s),
                                           lambda smp: smp.u_dac_V, self.seeds)
+        if sigma_amp > 0.0:                     # v_piezo = 1 x (0 + amplifier noise)
+            amp_cfg = replace(e, sensor_noise=False, dac_noise=False,
+                              amplifier_gain=1.0, **quiet)
+            self._amp_noise = _NoiseTerms(lambda s: ActuatorChain(amp_cfg, PiezoConfig.linear(), seed=s),
+                                          lambda smp: smp.v_piezo_V, self.seeds)
         if e.sensor_noise and e.sensor_noise_std_nm > 0:
             gauge_cfg = replace(e, dac_noise=False, **quiet)
             self._gauge_noise = _NoiseTerms(lambda s: SensorChain(gauge_cfg, seed=s), lambda smp: smp.reading_um,
@@ -143,9 +166,10 @@ class BatchElectronics:
             self._z = self._z0.copy()
         if self._creep:
             self._x = self._x0.copy()
-        for noise in (self._dac_noise, self._gauge_noise):
-            if noise is not None:
-                noise.reset()
+        for part in (self._dac_noise, self._amp_noise, self._gauge_noise, self._delay, self._lag,
+                     self._gauge_filter):
+            if part is not None:
+                part.reset()
 
     @property
     def hysteresis_state(self) -> np.ndarray | None:
@@ -160,7 +184,7 @@ class BatchElectronics:
         stage axis, which numpy evaluates left to right like the single chain's loop.
         """
         shape = u_V.shape
-        u = u_V.reshape(-1)
+        u = self._delay.step(u_V.reshape(-1))
         maximum, minimum = np.maximum, np.minimum
         if self._quant:
             code = np.subtract(u, self._center)
@@ -175,22 +199,23 @@ class BatchElectronics:
             u_dac = u.copy()
         if self._dac_noise is not None:
             np.add(u_dac, self._dac_noise.take1(), out=u_dac)
+        u_in = u_dac if self._amp_noise is None else u_dac + self._amp_noise.take1()
         if self._sat:
-            u_cmd = maximum(u_dac, self._lo)
+            u_cmd = maximum(u_in, self._lo)
             minimum(u_cmd, self._hi, out=u_cmd)
-            sat = u_cmd != u_dac
+            sat = u_cmd != u_in
             if code is not None and not self._dac_clip_implied:
                 sat |= code_c != code
         else:
-            u_cmd = u_dac
+            u_cmd = u_in
             sat = (code_c != code) if code is not None else np.zeros(u.shape, dtype=bool)
-        v = np.multiply(self._gain, u_cmd)
+        v = self._lag.step(np.multiply(self._gain, u_cmd))
         h = v
         if self._hyst:
-            vc = v[:, None]
+            band = np.add(v[:, None, None], self._pm_r, out=self._band)   # [v - r, v + r]; v - r == v + (-r) exactly
             z = self._z
-            maximum(z, vc - self._r, out=z)
-            minimum(z, vc + self._r, out=z)
+            maximum(z, band[:, 0], out=z)
+            minimum(z, band[:, 1], out=z)
             h = np.add.reduce(np.multiply(z, self._w, out=self._zw), axis=-1)
             h += self._w0 * v                                   # w0 v + sum (commutative: same bits)
         if self._creep:
@@ -208,6 +233,8 @@ class BatchElectronics:
         """True probe displacements ``(B, 3)`` um -> gauge noise, clip, ADC (one sample per member)."""
         shape = displacement_um.shape
         d = displacement_um.reshape(-1)
+        if self._gauge_filter is not None:
+            d = self._gauge_filter.step(d)
         if self._gauge_noise is not None:
             d = d + self._gauge_noise.take1()
         if self._clip:
