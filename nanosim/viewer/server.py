@@ -19,7 +19,9 @@ import viser.uplot as uplot
 from nanosim.plant.mjcf import load_model
 from nanosim.plant.modes import modal_analysis
 from nanosim.viewer import scene as sc
+from nanosim.viewer.bench import OPEN_LOOP, add_bench_gui, apply_bench_choice, bench_setup
 from nanosim.viewer.exaggerate import Exaggerator, table_displacement_m
+from nanosim.viewer.labels import VIEW_DIR, label_positions
 from nanosim.viewer.sim import LiveSim, load_controller
 from nanosim.viewer.waveforms import PRESETS, Waveform
 
@@ -44,16 +46,18 @@ class ViewerApp:
     """
 
     def __init__(self, model_path=None, controller_path=None, host: str = "127.0.0.1",
-                 port: int = 8080, seed: int = 0, realtime: bool = True, physics: str = "auto"):
+                 port: int = 8080, seed: int = 0, realtime: bool = True, physics: str = "auto", bench=None):
         if physics not in PHYSICS_CHOICES:
             raise ValueError(f"physics: expected one of {PHYSICS_CHOICES}, got {physics!r}")
         self.host, self.port = host, int(port)
         self.model = load_model(model_path)
         controller = load_controller(controller_path) if controller_path else None
+        self.bench, controller = bench_setup(bench, controller)
         self.physics_choice = physics
         self.sim = LiveSim(model=self.model, mjcf=model_path, controller=controller, seed=seed,
                            physics="linear" if physics == "linear" else "mujoco")
         self.physics_note = ""
+        self.auto_rtf: float | None = None     # MuJoCo's real-time factor over its first AUTO_WINDOW_S (auto)
         self.modal = modal_analysis(self.model)
         self.modes = self.modal.physical
         self.realtime = realtime
@@ -105,6 +109,13 @@ class ViewerApp:
     def reset(self) -> None:
         self._pending.append("reset")
 
+    def select_bench_controller(self, name: str) -> None:
+        """Switch to the bench controller ``name`` (or :data:`~nanosim.viewer.bench.OPEN_LOOP`) without a kick."""
+        if name not in self.bench and name != OPEN_LOOP:
+            raise ValueError(f"name: expected one of {[OPEN_LOOP, *self.bench]}, got {name!r}")
+        self._pending.append(("bench", name))
+        self.events.append(f"bench={name}")
+
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> "ViewerApp":
         if self.host not in LOOPBACK:
@@ -141,7 +152,7 @@ class ViewerApp:
         # stage centre shifted right of the look-at point so the GUI panel (right) does not hide it
         shift = np.array([0.76, 0.65, 0.0]) * 30.0
         look_at = np.array([0.0, 0.0, 24.0]) + shift
-        client.camera.position = tuple(look_at + 0.62 * np.array([95.0, -110.0, 62.0]))
+        client.camera.position = tuple(look_at + 0.62 * VIEW_DIR)
         client.camera.look_at = tuple(look_at)
         client.camera.near = 1.0
         client.camera.far = 5000.0
@@ -185,16 +196,14 @@ class ViewerApp:
         self._tendon_handle = s.add_line_segments("/stage/piezos", segs, colors=sc.TENDON_COLOR,
                                                   thickness=5.0, thickness_units="screen")
         self._trail_handle = None
-        # labels for a first-time user
+        # labels for a first-time user, placed apart (label_positions)
+        anchors = label_positions(self.model, d)
         for t in self.tendons:
-            p = d.site_xpos[t.sites[0]] * sc.MM + np.array([0, 0, 6.0])
-            s.add_label(f"/labels/{t.name}", f"piezo {t.name[0].upper()}", position=p)
+            s.add_label(f"/labels/{t.name}", f"piezo {t.name[0].upper()}", position=anchors[t.name])
         for ax in "xyz":
-            gid = self.model.geom(f"probe_{ax}").id
-            s.add_label(f"/labels/probe_{ax}", f"probe {ax.upper()}",
-                        position=d.geom_xpos[gid] * sc.MM + np.array([0, 0, 4.0]))
-        self._table_label = s.add_label("/labels/table", "table + target cube",
-                                        position=d.site_xpos[self._table_site] * sc.MM + np.array([0, 0, 16.0]))
+            s.add_label(f"/labels/probe_{ax}", f"probe {ax.upper()}", position=anchors[f"probe_{ax}"])
+        self._table_label_offset = anchors["table"] - d.site_xpos[self._table_site] * sc.MM
+        self._table_label = s.add_label("/labels/table", "table + target cube", position=anchors["table"])
 
     def _update_scene(self) -> None:
         with self._lock:
@@ -231,7 +240,7 @@ class ViewerApp:
                 if c != self._sent_colors[j]:
                     hh.color = c
                     self._sent_colors[j] = c
-            self._table_label.position = tpos + np.array([0, 0, 16.0])
+            self._table_label.position = tpos + self._table_label_offset
             if len(self._trail) >= 2:
                 pts = np.asarray(self._trail, np.float32)
                 seg = np.stack([pts[:-1], pts[1:]], axis=1)
@@ -283,7 +292,10 @@ class ViewerApp:
                     hint="MuJoCo: the nonlinear integrator, 20 substeps per 4 kHz period. Linearized: "
                          "MuJoCo's own linearization about home (12 states, < 2 % from MuJoCo at um "
                          "strokes), same electronics. auto: MuJoCo if it keeps real time, else linearized")
-                self._gui_physics = gui.add_text("running", self._physics_text(), disabled=True)
+                self._gui_physics = gui.add_text(
+                    "running", self._physics_text(), disabled=True,
+                    hint=f"auto measures MuJoCo's real-time factor over its first {AUTO_WINDOW_S:g} s and keeps "
+                         f"MuJoCo at >= {AUTO_MIN_RTF:g}x; the live value is the real-time factor above")
 
                 @phys.on_update
                 def _(_e):
@@ -310,6 +322,10 @@ class ViewerApp:
                 def _(_e):
                     self.reset()
                     self.events.append("reset")
+
+            if self.bench:
+                with gui.add_folder("Controller bench"):
+                    add_bench_gui(self, gui, self.bench)
 
             with gui.add_folder("Reference"):
                 sl = [gui.add_slider(f"{a} offset (um)", min=-20.0, max=20.0, step=0.1, initial_value=0.0)
@@ -418,15 +434,17 @@ class ViewerApp:
             elif item[0] == "realistic":
                 self.sim.set_realistic(item[1])
                 self._pace_reset = True
+            elif item[0] == "bench":
+                apply_bench_choice(self.sim, self.bench, item[1])
             elif item[0] == "physics":
                 self.physics_choice = item[1]
                 self.physics_note = ""
+                self.auto_rtf = None
                 self._auto_t0 = None
                 self._switch_physics("linear" if item[1] == "linear" else "mujoco")
 
     def _physics_text(self) -> str:
-        name = "MuJoCo (nonlinear)" if self.sim.physics == "mujoco" else "linearized MuJoCo"
-        return name + (f" - {self.physics_note}" if self.physics_note else "")
+        return physics_text(self.sim.physics, self.auto_rtf)
 
     def _clear_traces(self) -> None:
         """After the simulation restarts at t = 0: empty plots and trail, restart pacing."""
@@ -451,13 +469,11 @@ class ViewerApp:
             return
         if now - self._auto_t0 < AUTO_WINDOW_S:
             return
-        rtf = (self.sim.time_s - self._auto_sim0) / (now - self._auto_t0)
+        rtf = self.auto_rtf = (self.sim.time_s - self._auto_sim0) / (now - self._auto_t0)
+        self.physics_note = f"auto: MuJoCo ran at {rtf:.2f}x real time over {AUTO_WINDOW_S:g} s"
         if rtf < AUTO_MIN_RTF:
-            self.physics_note = f"auto: MuJoCo ran at {rtf:.2f}x real time"
             self.events.append(f"physics auto -> linear (MuJoCo {rtf:.2f}x)")
             self._switch_physics("linear")
-        else:
-            self.physics_note = f"auto: keeps real time ({rtf:.2f}x)"
 
     def _physics_loop(self) -> None:
         dt = self.sim.dt_s
@@ -531,6 +547,21 @@ class ViewerApp:
 
 
 _TABLE_DISP_CACHE: dict = {}
+
+
+PHYSICS_TEXT_MAX = 38     # characters the "running" field shows whole (control_width="large")
+
+
+def physics_text(physics: str, auto_rtf: float | None = None) -> str:
+    """The "running" field: the backend and, for ``auto``, the real-time factor it decided on
+    (over MuJoCo's first :data:`AUTO_WINDOW_S`; the live factor may differ later). Fits the field.
+    """
+    if auto_rtf is None:
+        return "MuJoCo (nonlinear)" if physics == "mujoco" else "linearized MuJoCo"
+    rtf = f"{min(auto_rtf, 9.99):.2f}x"
+    if physics == "mujoco":
+        return f"MuJoCo (auto: {rtf} in first {AUTO_WINDOW_S:g} s)"
+    return f"linearized (auto: MuJoCo {rtf} in {AUTO_WINDOW_S:g} s)"
 
 
 def table_displacement_m_cached(app: ViewerApp, i: int) -> float:
