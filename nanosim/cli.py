@@ -70,7 +70,7 @@ def _file(text: str) -> str:
 def _cmd_modes(args) -> int:
     from nanosim.fileio import save_figure
     from nanosim.pipeline.runfolder import check_writable
-    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.mjcf import FULL_MJCF, load_model
     from nanosim.plant.modes import modal_analysis, modes_json
     from nanosim.plots.modes import mode_shape_figures
 
@@ -81,7 +81,8 @@ def _cmd_modes(args) -> int:
         for name, fig in mode_shape_figures(model, modal_analysis(model), fmax_hz=args.fmax):
             print(save_figure(fig, Path(args.plot) / name))
         return 0
-    data = modes_json(model, fmax_hz=args.fmax)
+    full = load_model(FULL_MJCF) if args.mjcf is None else None      # bundled stage: its full-compliance twin too
+    data = modes_json(model, fmax_hz=args.fmax, full_model=full)
     if args.json:
         print(json.dumps(data, indent=2))
         return 0
@@ -244,7 +245,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--mjcf", default=None, type=_file, help="stage MJCF (default: the bundled scene.xml)")
     m.add_argument("--json", action="store_true", help="print JSON (modes, static gain, closure violation)")
     m.add_argument("--plot", metavar="DIR", default=None, help="write one PNG per mode shape into DIR")
-    m.add_argument("--fmax", type=_float_in(0.0, 1e6, lo_open=True), default=1000.0,
+    m.add_argument("--fmax", type=_float_in(0.0, 1e6, lo_open=True), default=3000.0,
                    help="list modes below this frequency (Hz, > 0)")
     m.set_defaults(func=_cmd_modes)
     i = sub.add_parser("identify", help="identify the 3x3 model from simulated experiments")

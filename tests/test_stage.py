@@ -18,7 +18,7 @@ def test_twin_dc_gain_and_modes_equal_modal_analysis(ideal, twin):
     res = modal_analysis(ideal.model)
     assert_allclose(twin.dc_gain_um_per_V, res.static_gain_um_per_V, rtol=1e-6, atol=1e-9)
     wn = np.sort(np.abs(np.linalg.eigvals(twin.sys_V.A))) / (2 * np.pi)
-    assert_allclose(wn[::2], [m.freq_hz for m in res.below(1000.0)], rtol=1e-3)
+    assert_allclose(wn[::2], [m.freq_hz for m in res.below(2500.0)], rtol=1e-3)   # the twin keeps modes < 2.5 kHz
 
 
 def test_twin_step_response_matches_ideal_stage(ideal, twin):
@@ -36,22 +36,29 @@ def test_twin_step_response_matches_ideal_stage(ideal, twin):
 
 
 def test_twin_frequency_response_matches_ideal_stage(twin):
-    """Periodic MLS excitation, second period: the FFT ratio is the stage's exact FRF."""
+    """Periodic MLS excitation, third period: the FFT ratio is the stage's exact FRF.
+
+    Two periods (2 s) let the transient of the least damped mode (zeta 0.003 at 175 Hz, time constant
+    0.3 s) decay to 1e-3; after one period 4 % of it would remain at the resonance.
+    """
     mls = 0.02 * (2.0 * max_len_seq(12)[0] - 1.0)   # 4095 samples
     period = len(mls)
-    u = np.zeros((3, 2 * period, 3))
+    u = np.zeros((3, 3 * period, 3))
     for act in range(3):
-        u[act, :, act] = np.tile(mls, 2)
+        u[act, :, act] = np.tile(mls, 3)
     traces = run_open_loop_batch(u, seeds=[0, 1, 2], config=StageConfig.ideal())
+    tr_model_timestep_s = Stage(config=StageConfig.ideal()).model.opt.timestep
     f = np.fft.rfftfreq(period, d=1 / C.CONTROL_RATE_HZ)
     band = (f > 1.0) & (f < 1000.0)
     z = np.exp(2j * np.pi * f[band] / C.CONTROL_RATE_HZ)
     for act, tr in enumerate(traces):
-        y = tr.sensor_V[period:]
-        U = np.fft.rfft(u[act, period:, act])[band]
+        y = tr.sensor_V[2 * period:]
+        U = np.fft.rfft(u[act, 2 * period:, act])[band]
         H_stage = np.fft.rfft(y, axis=0)[band] / U[:, None]
-        # trace row k is the reading after command k: one sample advance vs the twin
-        H_twin = np.array([twin.sysd_V(zz)[:, act] for zz in z]) * z[:, None]
+        # trace row k is the reading after command k: one sample advance vs the twin; MuJoCo evaluates the
+        # probes at the start of a period's last substep, one substep (model timestep) before its end
+        lag = np.exp(-2j * np.pi * f[band] * tr_model_timestep_s)
+        H_twin = np.array([twin.sysd_V(zz)[:, act] for zz in z]) * (z * lag)[:, None]
         peak = np.abs(H_twin).max()
         assert np.abs(H_stage - H_twin).max() < 0.02 * peak
 

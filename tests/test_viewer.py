@@ -18,23 +18,27 @@ from nanosim.viewer.exaggerate import (LINK_LENGTH_M, Exaggerator, closure_error
 
 # ---------------------------------------------------------------- scene
 def test_geom_specs_cover_model_in_mm(model):
+    from nanosim.plant.geometry import CALIBRATED_GEOMETRY as G
     specs = sc.geom_specs(model)
     assert len(specs) == model.ngeom            # every geom of the stage is drawable
     by = {s.name: s for s in specs}
     plate = by["base_plate"]
     assert plate.kind == "cylinder"
-    np.testing.assert_allclose(plate.dims_mm[:2], [60.0, 4.0])           # r 0.06 m, half-h 2 mm
-    np.testing.assert_allclose(by["target_cube"].dims_mm, [8.0, 8.0, 8.0])
-    np.testing.assert_allclose(by["a_lever_block"].pos_mm, model.geom("a_lever_block").pos * 1000)
-    crank = by["a_crank"]
-    assert crank.kind == "capsule"
-    np.testing.assert_allclose(crank.dims_mm[:2], [1.2, 16.0])
+    np.testing.assert_allclose(plate.dims_mm[:2], [45.0, 4.0])           # r 45 mm, 4 mm thick
+    side = G.table.target_side_m * 1000
+    np.testing.assert_allclose(by["target_cube"].dims_mm, [side] * 3, rtol=1e-5)
+    np.testing.assert_allclose(by["a_apa_end"].pos_mm, model.geom("a_apa_end").pos * 1000)
+    crank = by["a_crank"]                         # links are boxes with their real cross-section
+    assert crank.kind == "box"
+    np.testing.assert_allclose(np.sort(crank.dims_mm), np.sort([G.chain.fb1_rocker.thickness_m * 1000,
+                                                                G.chain.fb1_rocker.width_m * 1000,
+                                                                (G.chain.fb1_length_m - 2 * G.chain.fb1_notch.radius_m)
+                                                                * 1000]), rtol=1e-5)
     table = by["table"]
     assert table.kind == "mesh" and table.faces.shape[1] == 3
     assert table.vertices_mm.dtype == np.float32
-    np.testing.assert_allclose(np.sort(table.dims_mm), [3.0, 24.0, 27.7128], rtol=1e-4)   # mesh is re-centred/re-oriented by MuJoCo
     kinds = {s.kind for s in specs}
-    assert kinds == {"box", "cylinder", "capsule", "mesh", "sphere"}
+    assert kinds == {"box", "cylinder", "mesh"}
 
 
 def test_colours_tell_parts_apart(model):
@@ -48,12 +52,18 @@ def test_colours_tell_parts_apart(model):
 
 
 def test_hinges_and_piezo_tendons(model):
+    from nanosim.plant.geometry import CALIBRATED_GEOMETRY as G
     hinges = sc.hinge_specs(model)
-    assert len(hinges) == model.njnt == 27
-    for h in hinges:                      # marker cylinder axis = joint axis
+    assert len(hinges) == 36                   # every notch of the part: 12 per chain, drawn at its size
+    for h in hinges:                           # marker cylinder axis = the notch's bending axis
         z = np.zeros(9)
         mujoco.mju_quat2Mat(z, h.wxyz)
-        np.testing.assert_allclose(z.reshape(3, 3)[:, 2], model.jnt_axis[h.joint] / np.linalg.norm(model.jnt_axis[h.joint]), atol=1e-12)
+        if h.joint >= 0 and h.name.replace("_notch", "_bend") == model.joint(h.joint).name:
+            np.testing.assert_allclose(np.abs(z.reshape(3, 3)[:, 2] @ model.jnt_axis[h.joint]), 1.0, atol=1e-6)
+    h1 = next(h for h in hinges if h.name == "a_h1_notch")
+    notch = G.notch("a_h1")
+    np.testing.assert_allclose([h1.radius_mm, h1.length_mm], [notch.radius_m * 1000, notch.width_m * 1000],
+                               rtol=1e-5)
     tendons = sc.tendon_specs(model)
     assert [t.name for t in tendons] == ["a_piezo", "b_piezo", "c_piezo"]
     data = mujoco.MjData(model)
@@ -83,7 +93,7 @@ def test_closure_at_10000x_static_deflection(model):
     ex = Exaggerator(model)
     d = ex.pose_delta(dq, 1e4)
     err = closure_error(model, d.qpos)
-    welds = [err["b_table_closure"], err["c_table_closure"]]
+    welds = [err["b_leg_closure"], err["c_leg_closure"]]
     assert max(welds) < 0.01 * LINK_LENGTH_M
     assert max(err.values()) < 0.01 * LINK_LENGTH_M
     # and the picture really moved by ~ the exaggerated amount

@@ -67,7 +67,19 @@ def home_data(model: mujoco.MjModel) -> mujoco.MjData:
     return data
 
 
-def _tendon_jacobian(model, data) -> np.ndarray:
+def constraint_jacobian(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """Dense (nefc, nv) constraint Jacobian of ``data`` (MuJoCo stores it sparse for large models)."""
+    if data.nefc == 0:
+        return np.zeros((0, model.nv))
+    if mujoco.mj_isSparse(model):
+        J = np.zeros((data.nefc, model.nv))
+        mujoco.mju_sparse2dense(J, data.efc_J, data.efc_J_rownnz, data.efc_J_rowadr, data.efc_J_colind)
+        return J
+    return data.efc_J[:data.nefc * model.nv].reshape(data.nefc, model.nv).copy()
+
+
+def tendon_jacobian(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """Dense (ntendon, nv) tendon Jacobian of ``data``."""
     if model.ntendon == 0:
         return np.zeros((0, model.nv))
     Jt = np.zeros((model.ntendon, model.nv))
@@ -86,7 +98,7 @@ def mechanical_matrices(model: mujoco.MjModel) -> MechanicalMatrices:
     Cd = np.diag(model.dof_damping.copy())
     for j in range(model.njnt):
         K[model.jnt_dofadr[j], model.jnt_dofadr[j]] += model.jnt_stiffness[j]
-    Jt = _tendon_jacobian(model, data)
+    Jt = tendon_jacobian(model, data)
     K += Jt.T @ np.diag(model.tendon_stiffness) @ Jt
     Cd += Jt.T @ np.diag(model.tendon_damping) @ Jt
     # actuator moment arms: generalized force per unit control (force actuators)
@@ -98,7 +110,7 @@ def mechanical_matrices(model: mujoco.MjModel) -> MechanicalMatrices:
         B[:, i] = data.qfrc_actuator
     data.ctrl[:] = 0.0
     eq_rows = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
-    G = data.efc_J.reshape(data.nefc, nv)[eq_rows] if data.nefc else np.zeros((0, nv))
+    G = constraint_jacobian(model, data)[eq_rows]
     probe = np.zeros((3, nv))
     jacp = np.zeros((3, nv))
     for i, ax in enumerate("xyz"):

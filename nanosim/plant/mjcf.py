@@ -15,21 +15,21 @@ import numpy as np
 
 from importlib import resources
 
+from nanosim.plant.geometry import HINGE_FAMILIES as GEOMETRY_FAMILIES
+
 MJCF_DIR = Path(str(resources.files("nanosim.mjcf")))
-DEFAULT_MJCF = MJCF_DIR / "scene.xml"
+DEFAULT_MJCF = MJCF_DIR / "scene.xml"           # the simulation model (reduced compliance)
+FULL_MJCF = MJCF_DIR / "full" / "scene.xml"     # every notch compliant in bending, out-of-plane and torsion
 
 REQUIRED_ACTUATORS = ("piezo_a", "piezo_b", "piezo_c")
 REQUIRED_SITES = ("cube_face_x", "cube_face_y", "cube_face_z", "table_center",
                   "probe_x", "probe_y", "probe_z")
 REQUIRED_SENSORS = ("probe_x", "probe_y", "probe_z")
 
-# hinge families by joint-name suffix (see mjcf/README.md)
-HINGE_FAMILIES = {
-    "fourbar1": ("_crank", "_foot"),
-    "fourbar2": ("_rocker_p", "_leg_top"),
-    "swing": ("_h1",),
-    "lever": ("_lever",),
-}
+# hinge families: joints are named {chain}_{notch}_{bend|oop|tor} (mjcf/README.md); the v1 family
+# names still work as aliases
+HINGE_FAMILIES = {fam: tuple(notches) for fam, notches in GEOMETRY_FAMILIES.items()}
+FAMILY_ALIASES = {"fourbar1": "fb1", "fourbar2": "fb2", "lever": "apa"}
 
 
 def default_mjcf() -> Path:
@@ -46,9 +46,10 @@ def load_model(path: str | os.PathLike | None = None, *,
     Parameters
     ----------
     path : MJCF file; default the bundled ``mjcf/scene.xml``.
-    stiffness_scale : {family: factor} scales stiffness and damping of a hinge
-        family (``fourbar1``, ``fourbar2``, ``swing``, ``lever``) or of a
-        tendon by name (e.g. ``a_crank_bend``, ``a_piezo``).
+    stiffness_scale : {family: factor} scales stiffness and damping of every joint of a
+        notch family (``fb1``, ``fb2``, ``swing``, ``apa``; v1 names ``fourbar1``,
+        ``fourbar2``, ``lever`` are aliases) in every modelled direction, or of a
+        tendon by name (e.g. ``a_piezo``).
     body_mass_kg : {body: mass} sets a body's mass, scaling its inertia alike.
 
     Raises
@@ -101,21 +102,32 @@ def _scale_stiffness(model: mujoco.MjModel, scale: Mapping[str, float]) -> None:
         if not (np.isfinite(factor) and factor > 0):
             raise ValueError(f"stiffness_scale[{key!r}]: expected a positive factor, got {factor!r}")
         hit = False
-        if key in HINGE_FAMILIES:
+        fam = FAMILY_ALIASES.get(key, key)
+        if fam in HINGE_FAMILIES:
             for j in range(model.njnt):
-                if model.joint(j).name.endswith(HINGE_FAMILIES[key]):
+                parts = model.joint(j).name.split("_", 1)
+                notch = parts[1].rsplit("_", 1)[0] if len(parts) == 2 else ""
+                if notch in HINGE_FAMILIES[fam]:
                     model.jnt_stiffness[j] *= factor
                     model.dof_damping[model.jnt_dofadr[j]] *= factor
                     hit = True
+            if not hit:
+                raise ValueError(f"stiffness_scale: family {key!r} has no joints in this model (the simulation "
+                                 f"model lumps the APA notches on the crank joints)")
         else:
             tid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, key)
+            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, key)
             if tid >= 0:
                 model.tendon_stiffness[tid] *= factor
                 model.tendon_damping[tid] *= factor
                 hit = True
+            elif jid >= 0:
+                model.jnt_stiffness[jid] *= factor
+                model.dof_damping[model.jnt_dofadr[jid]] *= factor
+                hit = True
         if not hit:
             raise ValueError(f"stiffness_scale: {key!r} is neither a hinge family "
-                             f"{sorted(HINGE_FAMILIES)} nor a tendon name")
+                             f"{sorted(HINGE_FAMILIES)} nor a tendon or joint of the model")
 
 
 def custom_numeric(model: mujoco.MjModel, name: str, default) -> np.ndarray:

@@ -4,8 +4,14 @@ The plant is linearized by MuJoCo itself (``mjd_transitionFD``, centred
 differences, one integrator step of ``model.opt.timestep``); the discrete
 eigenvalues mu map to continuous ones by lambda = log(mu) / dt. The soft loop
 closures add stiff "constraint modes"; a mode is flagged as one when its
-shape violates the closures (||G phi|| / ||phi|| above ``CONSTRAINT_RATIO``)
-and excluded from :attr:`ModalResult.physical`.
+shape leaves the closure manifold (the part of phi outside null(G), over
+||phi||, above ``CONSTRAINT_RATIO``; G the closure Jacobian) and excluded
+from :attr:`ModalResult.physical`.
+
+Each mode also carries its kinetic-energy share by part (links, table and
+target, actuators; :func:`kinetic_energy_shares`), and :func:`modes_json`
+reports the table's parasitic rotation at full stroke
+(:func:`table_rotation_urad`).
 """
 from __future__ import annotations
 
@@ -32,6 +38,7 @@ class Mode:
         contribution, relative to the strongest mode's largest entry.
     is_constraint : the shape violates the loop closures (numerical mode).
     shape_q : (nv,) joint-space shape (real part, unit max-norm).
+    kinetic_energy_share : {part: share} of the mode's kinetic energy, parts from :data:`PARTS`.
     """
 
     freq_hz: float
@@ -41,10 +48,13 @@ class Mode:
     is_constraint: bool
     constraint_ratio: float
     shape_q: np.ndarray
+    kinetic_energy_share: dict = None
 
     def to_json(self) -> dict:
+        """JSON-ready dict (units in the keys)."""
         return {"freq_hz": float(self.freq_hz), "damping_ratio": float(self.damping_ratio),
                 "axis": self.axis, "sensor_participation": [float(v) for v in self.sensor_participation],
+                "kinetic_energy_share": {k: float(v) for k, v in (self.kinetic_energy_share or {}).items()},
                 "is_constraint": bool(self.is_constraint)}
 
 
@@ -66,9 +76,11 @@ class ModalResult:
 
     @property
     def physical(self) -> tuple[Mode, ...]:
+        """The modes that respect the loop closures."""
         return tuple(m for m in self.modes if not m.is_constraint)
 
     def below(self, freq_hz: float) -> tuple[Mode, ...]:
+        """Physical modes below ``freq_hz``."""
         return tuple(m for m in self.physical if m.freq_hz < freq_hz)
 
     def body_displacement(self, mode: Mode) -> np.ndarray:
@@ -77,8 +89,48 @@ class ModalResult:
 
     @property
     def lowest_constraint_hz(self) -> float:
+        """Frequency of the lowest closure (constraint) mode, Hz."""
         f = [m.freq_hz for m in self.modes if m.is_constraint]
         return float(min(f)) if f else float("inf")
+
+
+PARTS = ("links", "table_target", "actuators")
+
+
+def body_part(name: str) -> str | None:
+    """Which part a body belongs to: 'actuators' (APA bodies), 'table_target' (table, its lugs),
+    'links' (every other moving body); None for the fixed base.
+    """
+    if name in ("", "world", "stage"):
+        return None
+    if "_apa" in name:
+        return "actuators"
+    if name == "table" or name.endswith("_table_lug"):
+        return "table_target"
+    return "links"
+
+
+def kinetic_energy_shares(model: mujoco.MjModel, shapes_q: np.ndarray) -> list[dict]:
+    """Kinetic-energy share by part of each column of ``shapes_q`` (joint velocities), at home.
+
+    Each body contributes 1/2 m |v_com|^2 + 1/2 w^T I w with its own mass and inertia.
+    """
+    data = home_data(model)
+    shapes = np.atleast_2d(np.asarray(shapes_q, float).T).T
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    energy = np.zeros((len(PARTS), shapes.shape[1]))
+    for b in range(1, model.nbody):
+        part = body_part(model.body(b).name)
+        if part is None or model.body_mass[b] == 0.0:
+            continue
+        mujoco.mj_jacBodyCom(model, data, jacp, jacr, b)
+        v, w = jacp @ shapes, jacr @ shapes
+        R = data.ximat[b].reshape(3, 3)
+        I = R @ np.diag(model.body_inertia[b]) @ R.T
+        energy[PARTS.index(part)] += (0.5 * model.body_mass[b] * np.sum(v * v, axis=0)
+                                      + 0.5 * np.sum(w * (I @ w), axis=0))
+    total = np.maximum(energy.sum(axis=0), 1e-300)
+    return [{p: float(energy[i, k] / total[k]) for i, p in enumerate(PARTS)} for k in range(shapes.shape[1])]
 
 
 def _axis_label(part: np.ndarray) -> str:
@@ -126,14 +178,16 @@ def modal_analysis(model: mujoco.MjModel) -> ModalResult:
         contrib = 2 * np.abs(res) / np.abs(lam[i]) ** 2                # pair, static
         shape = np.real(v * np.exp(-1j * np.angle(v[np.argmax(np.abs(v))])))
         shape = shape / np.max(np.abs(shape))
-        ratio = np.linalg.norm(mm.G @ shape) / max(np.linalg.norm(shape), 1e-300) if mm.G.size else 0.0
+        off = shape - mm.N @ (mm.N.T @ shape)
+        ratio = np.linalg.norm(off) / max(np.linalg.norm(shape), 1e-300) if mm.G.size else 0.0
         entries.append((abs(lam[i]) / (2 * np.pi), -lam[i].real / abs(lam[i]),
                         np.linalg.norm(contrib, axis=1), ratio, shape))
     strongest = max((e[2].max() for e in entries if e[3] < CONSTRAINT_RATIO), default=1.0)
+    shares = kinetic_energy_shares(model, np.column_stack([e[4] for e in entries])) if entries else []
     modes = tuple(sorted((Mode(freq_hz=float(f), damping_ratio=float(z), axis=_axis_label(p),
                                sensor_participation=p / strongest, is_constraint=bool(r >= CONSTRAINT_RATIO),
-                               constraint_ratio=float(r), shape_q=s)
-                          for f, z, p, r, s in entries), key=lambda m: m.freq_hz))
+                               constraint_ratio=float(r), shape_q=s, kinetic_energy_share=ke)
+                          for (f, z, p, r, s), ke in zip(entries, shares)), key=lambda m: m.freq_hz))
     data = home_data(model)
     names, jacs = [], []
     jacp = np.zeros((3, nv))
@@ -161,22 +215,73 @@ def constraint_violation_ratio(model: mujoco.MjModel, volts=(7.5, -1.0, -1.0), s
         data.ctrl[:] = ramp[k] * force
         mujoco.mj_step(model, data)
     disp = np.linalg.norm(data.site("table_center").xpos - x0)
-    eq = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+    rows = np.flatnonzero(data.efc_type[:data.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY)
     lever = 20e-3
-    err = np.abs(data.efc_pos[eq]).max() * lever if eq.any() else 0.0
-    # weld translation rows are already lengths; the angle scaling above is the larger bound
+    err = 0.0
+    for eq_id in np.unique(data.efc_id[rows]):
+        r = data.efc_pos[rows[data.efc_id[rows] == eq_id]]
+        if model.eq_type[eq_id] == mujoco.mjtEq.mjEQ_WELD:
+            ts = model.eq_data[eq_id, 10] or 1.0
+            err = max(err, np.abs(r[:3]).max(), np.abs(r[3:]).max() / ts * lever)   # lengths; angles x lever
+        else:
+            err = max(err, np.abs(r).max() * lever)                                 # joint angles x lever
     return float(err / disp)
 
 
-def modes_json(model: mujoco.MjModel, fmax_hz: float = 1000.0) -> dict:
-    """The dict printed by ``nanosim modes --json``."""
+FULL_STROKE_UM = 87.0        # paper Sec. 2: "a maximum displacement of about 87 um along each axis"
+
+
+def table_rotation_urad(model: mujoco.MjModel, stroke_um: float = FULL_STROKE_UM) -> dict:
+    """Static table rotation (urad, about world X, Y, Z) for a pure translation of ``stroke_um`` per axis.
+
+    The actuator forces that move the probes by ``stroke_um`` along one axis and zero along the
+    others (inverse of the static probe compliance) are applied on the closure manifold; the
+    table's rotation comes from the parasitic (out-of-plane and torsional) notch compliance.
+    """
+    mm = mechanical_matrices(model)
+    Mr, Cr, Kr, Br, Pr, Tr = mm.reduced
+    X = np.linalg.solve(Kr, Br)                                  # reduced coordinates per newton
+    G = Pr @ X                                                   # probe m per newton
+    data = home_data(model)
+    jacr = np.zeros((3, model.nv))
+    mujoco.mj_jacBody(model, data, None, jacr, model.body("table").id)
+    out = {}
+    for i, ax in enumerate("XYZ"):
+        f = np.linalg.solve(G, stroke_um * 1e-6 * np.eye(3)[i])
+        out[ax] = (jacr @ (mm.N @ (X @ f)) * 1e6).tolist()
+    return out
+
+
+def modes_json(model: mujoco.MjModel, fmax_hz: float = 3000.0, full_model: mujoco.MjModel | None = None) -> dict:
+    """The dict printed by ``nanosim modes --json``: every physical mode below ``fmax_hz`` and more.
+
+    ``full_model``: the full-compliance model of the same stage; its modes below ``fmax_hz``, table
+    rotation and the agreement of its modes below 1 kHz with ``model``'s are added under
+    ``full_compliance``.
+    """
     res = modal_analysis(model)
+    extra = {}
+    if full_model is not None:
+        full = modal_analysis(full_model)
+        a = np.array([m.freq_hz for m in res.below(1000.0)])
+        b = np.array([m.freq_hz for m in full.below(1000.0)])
+        extra = {"full_compliance": {
+            "modes": [m.to_json() for m in full.below(fmax_hz)],
+            "table_rotation_urad": table_rotation_urad(full_model),
+            "modes_below_1kHz_difference_percent": (100 * (a / b - 1)).tolist() if len(a) == len(b) else None,
+        }}
     return {
         "modes": [m.to_json() for m in res.below(fmax_hz)],
         "static_gain_um_per_V": res.static_gain_um_per_V.tolist(),
+        "table_rotation_urad": table_rotation_urad(model),
+        "full_stroke_um": FULL_STROKE_UM,
         "constraint_violation_ratio": constraint_violation_ratio(model),
         "lowest_constraint_mode_hz": res.lowest_constraint_hz,
-        "units": {"freq_hz": "Hz", "static_gain_um_per_V": "um per controller volt (x20 amplifier, linear piezo)"},
+        "units": {"freq_hz": "Hz", "static_gain_um_per_V": "um per controller volt (x20 amplifier, linear piezo)",
+                  "table_rotation_urad": "urad about world X, Y, Z for a full_stroke_um translation along each "
+                                         "axis alone",
+                  "kinetic_energy_share": "share of the mode's kinetic energy in links, table+target, actuators"},
+        **extra,
     }
 
 

@@ -9,33 +9,46 @@ from nanosim.plant.modes import posed_data
 __all__ = ["mode_shape_figures", "mode_shape_file_name"]
 
 
+_BOX_EDGES = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
+_CORNERS = np.array([[(i >> k & 1) * 2 - 1 for k in range(3)] for i in range(8)], float)
+
+
 def _segments_mm(model: mujoco.MjModel, data: mujoco.MjData) -> list:
-    """Capsule/cylinder geoms of the moving mechanism as (2, 3) segments in mm."""
+    """The moving mechanism as (2, 3) segments in mm: every box as its 12 edges (links drawn with
+    their real cross-section), capsules/cylinders as their axis, meshes as their bounding box.
+    """
     segs = []
     lines = (int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_CYLINDER))
-    box = int(mujoco.mjtGeom.mjGEOM_BOX)
+    boxes = (int(mujoco.mjtGeom.mjGEOM_BOX), int(mujoco.mjtGeom.mjGEOM_MESH))
     for g in range(model.ngeom):
         if model.geom_bodyid[g] <= 1:
             continue
         c, R, size = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3), model.geom_size[g]
-        if int(model.geom_type[g]) in lines:
+        kind = int(model.geom_type[g])
+        if kind in lines:
             axis = R[:, 2] * size[1]
-        elif int(model.geom_type[g]) == box and size.max() > 2 * np.sort(size)[1]:
-            k = int(np.argmax(size))                  # elongated box (the levers): its long axis
-            axis = R[:, k] * size[k]
-        else:
-            continue
-        segs.append(np.stack([c - axis, c + axis]) * 1e3)
+            segs.append(np.stack([c - axis, c + axis]) * 1e3)
+        elif kind in boxes:
+            if kind == boxes[1]:
+                m = int(model.geom_dataid[g])
+                v = model.mesh_vert[model.mesh_vertadr[m]:model.mesh_vertadr[m] + model.mesh_vertnum[m]]
+                size = np.abs(v).max(axis=0)
+            corners = c + (_CORNERS * size) @ R.T
+            segs.extend(np.stack([corners[i], corners[j]]) * 1e3 for i, j in _BOX_EDGES)
     return segs
 
 
 def _tendons_mm(model: mujoco.MjModel, data: mujoco.MjData) -> list:
-    """Piezo tendons as (2, 3) segments in mm (first and last site of each spatial tendon)."""
+    """Piezo tendons (spatial tendons named ``*_piezo``) as (2, 3) segments in mm, first to last site."""
     out = []
-    for ch in ("a", "b", "c"):
-        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, n) for n in (f"{ch}_piezo_base", f"{ch}_crank_site")]
-        if min(ids) >= 0:
-            out.append(np.stack([data.site_xpos[i] for i in ids]) * 1e3)
+    for t in range(model.ntendon):
+        if not (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_TENDON, t) or "").endswith("_piezo"):
+            continue
+        adr, num = model.tendon_adr[t], model.tendon_num[t]
+        sites = [int(model.wrap_objid[w]) for w in range(adr, adr + num)
+                 if model.wrap_type[w] == mujoco.mjtWrap.mjWRAP_SITE]
+        if len(sites) >= 2:
+            out.append(np.stack([data.site_xpos[sites[0]], data.site_xpos[sites[-1]]]) * 1e3)
     return out
 
 
@@ -49,7 +62,7 @@ def mode_shape_figures(model: mujoco.MjModel, result, fmax_hz: float = 1000.0,
     """One Figure per physical mode below ``fmax_hz``: home (grey) vs exaggerated shape (red).
 
     The shape is scaled in joint space so the largest body displacement is
-    ``max_displacement_mm``; links are drawn as their capsule segments and the
+    ``max_displacement_mm``; links are drawn as box wireframes (their cross-sections) and the
     table's displacement as an arrow.
 
     Returns
@@ -69,9 +82,9 @@ def mode_shape_figures(model: mujoco.MjModel, result, fmax_hz: float = 1000.0,
         fig = Figure(figsize=(7.5, 6))
         ax = fig.add_subplot(projection="3d")
         for s in home_segs:
-            ax.plot(*s.T, color="0.75", lw=2.5)
+            ax.plot(*s.T, color="0.75", lw=1.2)
         for s in _segments_mm(model, moved):
-            ax.plot(*s.T, color="tab:red", lw=1.6)
+            ax.plot(*s.T, color="tab:red", lw=0.8)
         for s in _tendons_mm(model, moved):
             ax.plot(*s.T, color="tab:blue", lw=3, alpha=0.6)
         p0, p1 = home.xpos[tb] * 1e3, moved.xpos[tb] * 1e3
@@ -81,13 +94,14 @@ def mode_shape_figures(model: mujoco.MjModel, result, fmax_hz: float = 1000.0,
         lim = np.array([-50.0, 50.0])
         ax.set_xlim(lim)
         ax.set_ylim(lim)
-        ax.set_zlim(0, 50)
+        ax.set_zlim(0, 100)
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
         ax.set_zlabel("z (mm)")
         d = p1 - p0
         ax.set_title(f"Mode {i + 1}: {mode.freq_hz:.1f} Hz, zeta {mode.damping_ratio:.4f}, axis {mode.axis}\n"
-                     f"grey: home; red: shape (blue: piezo tendons) scaled to {max_displacement_mm:g} mm largest motion; "
+                     f"grey: home; red: shape (blue: piezo tendons) scaled to {max_displacement_mm:g} mm largest "
+                     f"motion; "
                      f"table moves ({d[0]:+.1f}, {d[1]:+.1f}, {d[2]:+.1f}) mm", fontsize=9)
         ax.legend(loc="upper left", fontsize=8)
         ax.view_init(elev=22, azim=-60)

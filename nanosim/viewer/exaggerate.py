@@ -12,7 +12,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from nanosim.plant.mechanics import home_data, mechanical_matrices
+from nanosim.plant.mechanics import constraint_jacobian, home_data, mechanical_matrices
 
 __all__ = ["LINK_LENGTH_M", "exaggerate_q", "Exaggerator", "project_closures", "closure_error",
            "static_deflection_q", "table_displacement_m"]
@@ -57,7 +57,7 @@ class Exaggerator:
 def _equality_residual(model, data):
     mujoco.mj_fwdPosition(model, data)
     rows = np.flatnonzero(data.efc_type[:data.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY)
-    J = data.efc_J.reshape(data.nefc, model.nv)[rows] if data.nefc else np.zeros((0, model.nv))
+    J = constraint_jacobian(model, data)[rows]
     return data.efc_pos[rows].copy(), J.copy()
 
 

@@ -64,7 +64,7 @@ class HingeSpec:
     """A hinge joint marker: short cylinder on the joint axis, in the body frame."""
 
     name: str
-    joint: int
+    joint: int              # joint whose angle is the notch's bending (-1: none)
     body: int
     pos_mm: np.ndarray
     wxyz: np.ndarray        # rotates +z onto the joint axis
@@ -169,9 +169,36 @@ def geom_specs(model: mujoco.MjModel, include_groups=(0, 1, 2)) -> list[GeomSpec
     return out
 
 
+def _notch_joint(model: mujoco.MjModel, notch_site_name: str) -> int:
+    """The joint whose rotation is the notch's bending angle (-1 if the model has none)."""
+    stem = notch_site_name[: -len("_notch")]
+    ch, notch = stem.split("_", 1)
+    carriers = {"follower_top": "follower_base", "rocker_n_top": "rocker_n_base", "rocker_n_base": "rocker_n_top",
+                "apa_crank": "crank_base", "apa_base": "crank_base"}
+    for name in (f"{stem}_bend", f"{ch}_{carriers.get(notch, notch)}_bend"):
+        j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if j >= 0:
+            return j
+    return -1
+
+
 def hinge_specs(model: mujoco.MjModel, radius_mm: float = 1.6, length_mm: float = 3.0) -> list[HingeSpec]:
-    """A marker for every hinge joint (the flexure hinges of the PRB model)."""
+    """A marker for every flexure hinge.
+
+    Stage v2 models carry one cylinder site per notch (``{chain}_{notch}_notch``: radius = cut radius,
+    length = notch width, axis = bending axis), drawn at its true size; older models get a marker of
+    the given size on every hinge joint.
+    """
     out = []
+    for i in range(model.nsite):
+        name = _name(model, mujoco.mjtObj.mjOBJ_SITE, i, "site")
+        if name.endswith("_notch") and model.site_type[i] == mujoco.mjtGeom.mjGEOM_CYLINDER:
+            out.append(HingeSpec(name=name, joint=_notch_joint(model, name), body=int(model.site_bodyid[i]),
+                                 pos_mm=model.site_pos[i] * MM, wxyz=model.site_quat[i].copy(),
+                                 radius_mm=float(model.site_size[i, 0] * MM),
+                                 length_mm=float(2 * model.site_size[i, 1] * MM)))
+    if out:
+        return out
     for j in range(model.njnt):
         if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
             continue

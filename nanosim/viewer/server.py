@@ -225,7 +225,7 @@ class ViewerApp:
         ids = self._body_ids
         moved = (np.abs(pos[ids] - self._sent_pos).max(axis=1) > 1e-4) | \
                 (np.abs(quat[ids] - self._sent_quat).max(axis=1) > 1e-7)
-        colors = [sc.heat_color(rot[self.model.jnt_dofadr[hs.joint]] / rmax) if rmax > 1e-15
+        colors = [sc.heat_color(rot[self.model.jnt_dofadr[hs.joint]] / rmax) if rmax > 1e-15 and hs.joint >= 0
                   else sc.HINGE_COLOR for hs in self.hinges]
         with self.server.atomic():
             for i in np.flatnonzero(moved):
