@@ -149,10 +149,12 @@ class ViewerApp:
 
     def _on_connect(self, client) -> None:
         client.camera.up_direction = (0.0, 0.0, 1.0)
-        # stage centre shifted right of the look-at point so the GUI panel (right) does not hide it
-        shift = np.array([0.76, 0.65, 0.0]) * 30.0
-        look_at = np.array([0.0, 0.0, 24.0]) + shift
-        client.camera.position = tuple(look_at + 0.62 * VIEW_DIR)
+        # stage centre shifted right of the look-at point so the GUI panel (right) does not hide it; framed on
+        # the model's <statistic> centre and extent (the v2 stage stands 97 mm tall)
+        size = float(self.model.stat.extent) / 0.1
+        shift = np.array([0.76, 0.65, 0.0]) * 40.0 * size
+        look_at = np.array([0.0, 0.0, float(self.model.stat.center[2]) * sc.MM]) + shift
+        client.camera.position = tuple(look_at + 0.95 * size * VIEW_DIR)
         client.camera.look_at = tuple(look_at)
         client.camera.near = 1.0
         client.camera.far = 5000.0
