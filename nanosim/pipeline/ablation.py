@@ -35,6 +35,7 @@ creep only settles in 9.2 ms, a linear one in 8.7 ms.
 """
 from __future__ import annotations
 
+import json
 import tempfile
 import time
 from dataclasses import dataclass, replace
@@ -191,13 +192,20 @@ def run_ablation(out_dir, *, seed: int = 0, twin: bool = True, redesign: bool = 
             t0 = time.perf_counter()
             work = Path(tmp) / row.name.replace(" ", "_")
             work.mkdir(parents=True, exist_ok=True)
-            ctrl = _design(plant, row, seed, work) if redesign else base_ctrl
-            m = run_row(plant, row, ctrl, seed)
+            try:
+                ctrl = _design(plant, row, seed, work) if redesign else base_ctrl
+                m = run_row(plant, row, ctrl, seed)
+            except Exception as exc:            # one failing row (e.g. a design error) must not lose the others
+                m = {k: float("nan") for k in ("settling_ms", "overshoot_percent", "rise_ms", "bandwidth_S_hz",
+                                               "sigma_closed_nm", "sigma_closed_table_nm", "sigma_open_nm",
+                                               "contour_mean_nm_1000")}
+                m["error"] = f"{type(exc).__name__}: {exc}"
             m.update(name=row.name, change=row.change, seconds=round(time.perf_counter() - t0, 1))
             result["rows"].append(m)
+            (out / "ablation.partial.json").write_text(json.dumps(result, indent=1))
             log(f"{row.name:22s} settle {m['settling_ms']:7.1f} ms  sigma {m['sigma_closed_nm']:5.2f} nm "
                 f"(table {m['sigma_closed_table_nm']:5.2f})  contour {m['contour_mean_nm_1000']:6.1f} nm  "
-                f"S-BW {m['bandwidth_S_hz']:5.1f} Hz  ({m['seconds']} s)")
+                f"S-BW {m['bandwidth_S_hz']:5.1f} Hz  ({m['seconds']} s) {m.get('error', '')}", flush=True)
     return result
 
 
