@@ -602,3 +602,25 @@ def test_analyze_controller_on_the_loop_as_run():
     assert la.controller_systems(K)[1] is None
     with pytest.raises(ValueError, match="controller: sample time"):
         la.analyze_controller(ct.ss(K2.A, K2.B, K2.C, K2.D, 1e-3), plant, n_error=3, freq_hz=f[f < 400])
+
+
+def test_perturbed_plant_moves_the_modes_not_the_signal_chain_filters():
+    # The gauge's Tustin-discretized Butterworth (3 identical channels, poles in the left half
+    # of the z-plane, zeta 0.7) is not a structural mode: only the light modes move.
+    from nanosim.plant.electronics import ElectronicsConfig
+
+    Gd, _ = stage()
+    elec = ElectronicsConfig.ideal(computation_delay_samples=1, amplifier_bandwidth_Hz=10e3, gauge_bandwidth_Hz=5e3)
+    plant = la.LoopPlant.twin(Gd, elec)
+    P = la.perturbed_plant(plant.G, 1.03, 0.5)
+    p0 = np.linalg.eigvals(plant.G.A)
+    p1 = np.linalg.eigvals(P.A)
+    light = la.least_damped_pole(P)
+    assert light.freq_hz == pytest.approx(1.03 * 900.0, rel=1e-6) and light.zeta == pytest.approx(0.0075, rel=1e-6)
+    filt = p0[(np.abs(p0) > 1e-3) & (p0.real < 0)]                       # the gauge filter's poles
+    assert filt.size == 6 and all(np.min(np.abs(p1 - q)) < 1e-6 for q in filt)
+    f = np.logspace(0, np.log10(2000.0), 40)
+    K, Ky, _ = _two_dof_controller(Gd)
+    res = la.robust_stability_mu(plant.G, K, Ky, None, f, nominal_delay_samples=plant.delay_samples,
+                                 delay_samples_range=(2, 2), n_levels=2, n_random=0, refine=False)
+    assert res.n_samples == 2 ** 3 * 2 * 2 * 1

@@ -37,8 +37,8 @@ from nanosim.design.lti import sigma_max
 from nanosim.design.margins import refine_mu_peak
 from nanosim.design.mu import mu_upper_bound
 
-__all__ = ["UncertaintySet", "STAGE_UNCERTAINTY", "RobustStabilityResult", "ModalPlant", "perturbed_plant",
-           "robust_stability_mu"]
+__all__ = ["UncertaintySet", "STAGE_UNCERTAINTY", "MODE_ZETA_MAX", "RobustStabilityResult", "ModalPlant",
+           "perturbed_plant", "robust_stability_mu"]
 
 
 @dataclass(frozen=True)
@@ -87,6 +87,8 @@ class UncertaintySet:
 
 
 STAGE_UNCERTAINTY = UncertaintySet()
+# Complex poles damped more than this are not structural modes (filters, creep fits): not perturbed.
+MODE_ZETA_MAX = 0.3
 
 
 def perturbed_plant(G, freq_scale: float = 1.0, damping_scale: float = 1.0, input_gain=1.0,
@@ -97,8 +99,9 @@ def perturbed_plant(G, freq_scale: float = 1.0, damping_scale: float = 1.0, inpu
     ``G`` is diagonalised, ``A = V diag(lambda) V^-1``.  Each pole, in continuous-time
     terms ``lambda = -zeta w_n +- j w_n sqrt(1 - zeta^2)`` (discrete poles are mapped
     with ``s = log(z) / dt`` and back with ``z = exp(s dt)``), becomes
-    ``w_n' = freq_scale w_n``, ``zeta' = damping_scale zeta`` for complex poles
-    (a pair turns real if ``zeta' >= 1``), and ``freq_scale lambda`` for real poles;
+    ``w_n' = freq_scale w_n``, ``zeta' = damping_scale zeta`` for complex poles with
+    ``zeta < MODE_ZETA_MAX`` (a pair turns real if ``zeta' >= 1``; better damped pairs stay),
+    and ``freq_scale lambda`` for real poles;
     poles at ``s = 0`` stay.  With ``keep_dc_gain`` each modal residue is scaled by
     ``lambda'/lambda`` (continuous) or ``(1 - z')/(1 - z)`` (discrete) so that every
     mode keeps its static contribution (a mass-like rather than stiffness-like change;
@@ -171,10 +174,19 @@ class ModalPlant:
                 self.s = lam.astype(complex)
 
     def poles(self, fs: float, zs: float, keep_dc_gain: bool = True):
-        """Perturbed poles (``z`` or ``s``) and the residue factors that keep each mode's DC gain."""
+        """Perturbed poles (``z`` or ``s``) and the residue factors that keep each mode's DC gain.
+
+        Modes are the complex pairs with damping below :data:`MODE_ZETA_MAX` (the structure's
+        resonances) and the real poles; well-damped pairs (signal-chain filters) and discrete
+        poles on the negative real axis (no conjugate partner) stay where they are.
+        """
         s_new = self.s.copy()
         for k, sk in enumerate(self.s):
             if not np.isfinite(sk) or sk == 0:
+                continue
+            if self.discrete and self.lam[k].real < 0 and abs(self.lam[k].imag) <= 1e-12 * abs(self.lam[k]):
+                continue
+            if abs(sk.imag) > 1e-12 * abs(sk) and -sk.real / abs(sk) >= MODE_ZETA_MAX:
                 continue
             wn = abs(sk)
             if abs(sk.imag) > 1e-12 * wn:
