@@ -37,7 +37,7 @@ from nanosim.design.lti import sigma_max
 from nanosim.design.margins import refine_mu_peak
 from nanosim.design.mu import mu_upper_bound
 
-__all__ = ["UncertaintySet", "STAGE_UNCERTAINTY", "MODE_ZETA_MAX", "RobustStabilityResult", "ModalPlant",
+__all__ = ["UncertaintySet", "STAGE_UNCERTAINTY", "MODE_ZETA_MAX", "MODE_MAX_HZ", "RobustStabilityResult", "ModalPlant",
            "perturbed_plant", "robust_stability_mu"]
 
 
@@ -87,8 +87,10 @@ class UncertaintySet:
 
 
 STAGE_UNCERTAINTY = UncertaintySet()
-# Complex poles damped more than this are not structural modes (filters, creep fits): not perturbed.
+# Complex poles damped more than this, or above this frequency, are not the stage's structural modes
+# (176-738 Hz; filters, creep fits): the uncertainty set leaves them alone.
 MODE_ZETA_MAX = 0.3
+MODE_MAX_HZ = 1000.0
 
 
 def perturbed_plant(G, freq_scale: float = 1.0, damping_scale: float = 1.0, input_gain=1.0,
@@ -100,7 +102,8 @@ def perturbed_plant(G, freq_scale: float = 1.0, damping_scale: float = 1.0, inpu
     terms ``lambda = -zeta w_n +- j w_n sqrt(1 - zeta^2)`` (discrete poles are mapped
     with ``s = log(z) / dt`` and back with ``z = exp(s dt)``), becomes
     ``w_n' = freq_scale w_n``, ``zeta' = damping_scale zeta`` for complex poles with
-    ``zeta < MODE_ZETA_MAX`` (a pair turns real if ``zeta' >= 1``; better damped pairs stay),
+    ``zeta < MODE_ZETA_MAX`` and ``f_n <= MODE_MAX_HZ`` (a pair turns real if ``zeta' >= 1``;
+    other pairs stay),
     and ``freq_scale lambda`` for real poles;
     poles at ``s = 0`` stay.  With ``keep_dc_gain`` each modal residue is scaled by
     ``lambda'/lambda`` (continuous) or ``(1 - z')/(1 - z)`` (discrete) so that every
@@ -176,9 +179,11 @@ class ModalPlant:
     def poles(self, fs: float, zs: float, keep_dc_gain: bool = True):
         """Perturbed poles (``z`` or ``s``) and the residue factors that keep each mode's DC gain.
 
-        Modes are the complex pairs with damping below :data:`MODE_ZETA_MAX` (the structure's
-        resonances) and the real poles; well-damped pairs (signal-chain filters) and discrete
-        poles on the negative real axis (no conjugate partner) stay where they are.
+        Modes are the complex pairs with damping below :data:`MODE_ZETA_MAX` and natural
+        frequency up to :data:`MODE_MAX_HZ` (the structure's resonances), and the real poles;
+        other pairs (signal-chain filters: the gauge's 5 kHz Butterworth discretized at 4 kHz
+        shows as zeta 0.12 at 1.8 kHz) and discrete poles on the negative real axis (no
+        conjugate partner) stay where they are.
         """
         s_new = self.s.copy()
         for k, sk in enumerate(self.s):
@@ -186,7 +191,8 @@ class ModalPlant:
                 continue
             if self.discrete and self.lam[k].real < 0 and abs(self.lam[k].imag) <= 1e-12 * abs(self.lam[k]):
                 continue
-            if abs(sk.imag) > 1e-12 * abs(sk) and -sk.real / abs(sk) >= MODE_ZETA_MAX:
+            if abs(sk.imag) > 1e-12 * abs(sk) and (-sk.real / abs(sk) >= MODE_ZETA_MAX
+                                                   or abs(sk) > 2 * math.pi * MODE_MAX_HZ):
                 continue
             wn = abs(sk)
             if abs(sk.imag) > 1e-12 * wn:
