@@ -534,7 +534,11 @@ def test_wheel_installs_and_runs_in_a_fresh_venv(tmp_path):
     p = subprocess.run([str(venv / "bin" / "nanosim"), "modes", "--json"], capture_output=True, text=True, cwd=cwd,
                        env=env, timeout=300)
     assert p.returncode == 0, p.stderr
-    assert len(json.loads(p.stdout)["modes"]) == 6
+    installed = json.loads(p.stdout)
+    here = json.loads(nanosim("modes", "--json").stdout)             # the same command from the repository
+    assert len(installed["modes"]) >= 6                                # the paper's six below 1 kHz
+    np.testing.assert_allclose([m["freq_hz"] for m in installed["modes"]], [m["freq_hz"] for m in here["modes"]],
+                               rtol=1e-9)
 
 
 def test_viewer_labels_do_not_overlap_on_the_first_view(model):
