@@ -20,8 +20,8 @@ from pathlib import Path
 
 from nanosim.fileio import write_json
 
-__all__ = ["RunFolderError", "MANIFEST_JSON", "SealedRun", "check_writable", "staged_run", "write_manifest",
-           "verify_manifest", "sealed_run", "verify_input_file", "sha256_file"]
+__all__ = ["RunFolderError", "MANIFEST_JSON", "SealedRun", "check_writable", "staged_run", "writer_lock",
+           "write_manifest", "verify_manifest", "sealed_run", "verify_input_file", "sha256_file"]
 
 MANIFEST_JSON = "manifest.json"
 
@@ -253,6 +253,23 @@ def _alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
+
+
+@contextlib.contextmanager
+def writer_lock(out: str | os.PathLike):
+    """The writer lock of run folder ``out`` (for commands that write in place instead of staging).
+
+    The same lock :func:`staged_run` takes: a second writer on ``out`` gets a one-line
+    :class:`RunFolderError`; a lock left by a dead process is taken over.
+    """
+    out = Path(out).resolve()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    lock = _Lock(out.parent / f".{out.name}.lock")
+    lock.acquire()
+    try:
+        yield out
+    finally:
+        lock.release()
 
 
 @contextlib.contextmanager
