@@ -93,9 +93,10 @@ def test_fast_products_within_1e9(plants):
     p = plants[0]
     c = _controller(p["G0"], True)
     seeds = [1, 2, 3]
-    exact = run_closed_loop_batch(BatchTwinStage(p["twin"], seeds, home_um=p["home"]),
+    exact = run_closed_loop_batch(BatchTwinStage(p["twin"], seeds, home_um=p["home"], floor_models=p["floor"]),
                                   BatchController(c, n=3), _ref(), settle_s=0.1)
-    fast = run_closed_loop_batch(BatchTwinStage(p["twin"], seeds, home_um=p["home"], exact=False),
+    fast = run_closed_loop_batch(BatchTwinStage(p["twin"], seeds, home_um=p["home"], floor_models=p["floor"],
+                                                exact=False),
                                  BatchController(c, n=3, exact=False), _ref(), settle_s=0.1)
     for e, f in zip(exact, fast):
         assert np.allclose(e.table_um, f.table_um, rtol=1e-9, atol=1e-9)

@@ -11,7 +11,8 @@ from nanosim.pipeline.montecarlo import run_montecarlo
 from nanosim.pipeline.runfolder import RunFolderError, verify_manifest
 from nanosim.pipeline.sweep import parse_param, pareto_front, point_model
 from nanosim.plant.mjcf import load_model
-from nanosim.plant.tolerances import NOTCHES, default_tolerances, notch_stiffness_ratio, sample_model
+from nanosim.plant.modes import modal_analysis
+from nanosim.plant.tolerances import default_tolerances, notch_stiffness_ratio, sample_model
 
 
 @pytest.fixture(scope="module")
@@ -26,33 +27,60 @@ def test_samples_reproducible_bounded_and_sourced(tm):
     for t in tm.tolerances:
         assert abs(a[t.name] - t.nominal) <= t.half_width
         assert t.source and t.unit
-    assert len([n for n in tm.names if n.startswith("thickness.")]) == 3 * len(NOTCHES)
+    assert tm.layout == "v2" and len([n for n in tm.names if n.startswith("thickness.")]) == 3 * 12
     x = np.array([tm.normalized(tm.sample(0, i)) for i in range(300)])
     assert np.all(np.abs(x) <= 1) and abs(x.mean()) < 0.02 and abs(x.var() - 1 / 3) < 0.01     # uniform(-1, 1)
 
 
-def test_nominal_sample_is_symmetric_and_pw_scaling_applies(tm, model):
+def test_nominal_sample_is_symmetric_and_deviations_follow_the_notch_formula(tm, model):
+    from nanosim.plant.geometry import CALIBRATED_GEOMETRY
+    from nanosim.plant.hinges import notch_stiffness
+
     nominal = sample_model(tm.nominal(), tm)
-    for suffix in ("crank", "foot", "h1", "rocker_p", "leg_top", "lever"):
-        k = [nominal.jnt_stiffness[nominal.joint(f"{c}_{suffix}").id] for c in "abc"]
-        assert k[0] == k[1] == k[2] == np.median([model.jnt_stiffness[model.joint(f"{c}_{suffix}").id]
-                                                  for c in "abc"])
+    for j in ("h1_bend", "h2_tor", "crank_base_bend"):
+        k = [nominal.jnt_stiffness[nominal.joint(f"{c}_{j}").id] for c in "abc"]
+        assert k[0] == pytest.approx(k[1], rel=1e-12) and k[0] == pytest.approx(k[2], rel=1e-12)
+    f = [m.freq_hz for m in modal_analysis(nominal).below(1000.0)]
+    assert f[1] / f[0] - 1 < 2e-4                                  # no imposed chain asymmetry: XY pair degenerate
     v = tm.nominal()
-    t0 = v["thickness.a_h1"]
-    v["thickness.a_h1"] = v["thickness.a_h2"] = t0 + 5.0
-    v["radius.b_lever"] += 5.0
+    t0, R0 = v["thickness.a_h1"], v["radius.a_h2"]
+    v["thickness.a_h1"] = t0 + 5.0
+    v["radius.a_h2"] = R0 + 5.0
     v["target_mass"] *= 1.02
     v["piezo_gain.c"] = 1.1
     v["width.a_foot"] += 5.0
     m = sample_model(v, tm)
+    mat, nh = CALIBRATED_GEOMETRY.material, CALIBRATED_GEOMETRY.chain.swing_notch
+
+    def k(t_um):
+        return notch_stiffness(mat, nh.with_thickness(t_um * 1e-6)).bending_Nm_per_rad
+
+    ratio = m.jnt_stiffness[m.joint("a_h1_bend").id] / m.jnt_stiffness[m.joint("b_h1_bend").id]
+    assert ratio == pytest.approx(k(t0 + 5) / k(t0), rel=1e-5)      # the builder's notch formula (XML digits)
+    radius = m.jnt_stiffness[m.joint("a_h2_bend").id] / m.jnt_stiffness[m.joint("b_h2_bend").id]
+    assert radius == pytest.approx(k(t0 * (R0 / (R0 + 5)) ** 0.2) / k(t0), rel=1e-5)   # equivalent thickness
+    assert radius < 1 < ratio
+    assert m.body_mass[m.body("table").id] == pytest.approx(1.02 * nominal.body_mass[nominal.body("table").id])
+    assert m.actuator_gainprm[m.actuator("piezo_c").id, 0] == pytest.approx(1.1)
+    assert m.body_mass[m.body("a_foot").id] / nominal.body_mass[nominal.body("a_foot").id] == pytest.approx(2405 / 2400)
+
+
+def test_v1_stage_maps_onto_its_lumped_springs():
+    from nanosim.plant.mjcf import MJCF_DIR
+
+    v1 = MJCF_DIR / "v1" / "scene.xml"
+    base = load_model(v1)
+    tm1 = default_tolerances(base)
+    assert tm1.layout == "v1"
+    v = tm1.nominal()
+    t0 = v["thickness.a_h1"]
+    v["thickness.a_h1"] = v["thickness.a_h2"] = t0 + 5.0
+    m = sample_model(v, tm1, v1)
+    k = [base.jnt_stiffness[base.joint(f"{c}_h1").id] for c in "abc"]
+    assert m.jnt_stiffness[m.joint("b_h1").id] == pytest.approx(np.median(k), rel=1e-12)   # chain A's 14 % removed
     ratio = m.jnt_stiffness[m.joint("a_h1").id] / m.jnt_stiffness[m.joint("b_h1").id]
     assert ratio == pytest.approx(((t0 + 5) / t0) ** 2.5, rel=1e-12)
     assert ratio == pytest.approx(notch_stiffness_ratio(t0 + 5, t0), rel=1e-15)
-    lever = m.jnt_stiffness[m.joint("b_lever").id] / m.jnt_stiffness[m.joint("a_lever").id]
-    assert lever == pytest.approx(math.sqrt(1000.0 / 1005.0), rel=1e-12)           # k ~ R^-1/2
-    assert m.body_mass[m.body("table").id] == pytest.approx(1.02 * model.body_mass[model.body("table").id])
-    assert m.actuator_gainprm[m.actuator("piezo_c").id, 0] == pytest.approx(1.1)
-    assert m.body_mass[m.body("a_foot").id] / m.body_mass[m.body("b_foot").id] == pytest.approx(2405 / 2400)
 
 
 # --- statistics ----------------------------------------------------------------------------------------
@@ -103,14 +131,18 @@ def test_pareto_front_and_sweep_parameters():
            {"bandwidth_S_hz": 20, "travel_um": 120, "resolution_nm": 2.0},
            {"bandwidth_S_hz": 35, "travel_um": 60, "resolution_nm": math.nan}]
     assert pareto_front(pts) == [0, 2]
-    assert parse_param("thickness.swing=90:130:3") == ("thickness.swing", 90.0, 130.0, 3)
-    for bad in ("thickness.swing=90:130", "nope=1:2:2", "target_mass_g=0:2:2"):
+    assert parse_param("thickness.swing=150:210:3") == ("thickness.swing", 150.0, 210.0, 3)
+    assert parse_param("thickness.fourbar2=60:80:2")[0] == "thickness.fb2"
+    assert parse_param("length_mm.leg_length=16:24:3")[0] == "length_mm.leg_length"
+    for bad in ("thickness.swing=90:130", "nope=1:2:2", "target_mass_g=0:2:2", "length_mm.nope=1:2:2"):
         with pytest.raises(ValueError, match="--param"):
             parse_param(bad)
-    m = point_model({"stiffness.swing": 2.0, "target_mass_g": 30.0})
     base = load_model()
-    assert m.jnt_stiffness[m.joint("b_h1").id] == pytest.approx(2 * base.jnt_stiffness[base.joint("b_h1").id])
+    m = point_model({"stiffness.swing": 2.0, "target_mass_g": 30.0})
+    assert m.jnt_stiffness[m.joint("b_h1_bend").id] == pytest.approx(2 * base.jnt_stiffness[base.joint("b_h1_bend").id])
     assert m.body_mass[m.body("table").id] == pytest.approx(0.030)
+    thick = point_model({"thickness.swing": 200.0, "length_mm.leg_length": 22.0})
+    assert thick.jnt_stiffness[thick.joint("c_h1_bend").id] > base.jnt_stiffness[base.joint("c_h1_bend").id]
 
 
 # --- end to end ----------------------------------------------------------------------------------------

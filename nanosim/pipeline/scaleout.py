@@ -99,6 +99,16 @@ class _QueueChannel:
                 return total
 
 
+class _BarSink:
+    """Progress sink of in-process tasks: updates the bar directly."""
+
+    def __init__(self, bar):
+        self._bar = bar
+
+    def put(self, n) -> None:
+        self._bar.update(int(n))
+
+
 @dataclass
 class ScaleOut:
     """An open executor.
@@ -188,6 +198,8 @@ def run_tasks(scale: ScaleOut, fn: Callable, tasks: Iterable[tuple], on_result: 
         bar = tqdm(total=total_units, initial=done_units, desc=desc, unit="step", file=sys.stderr,
                    smoothing=0.05, dynamic_ncols=True)
     sink = scale.channel.sink
+    if isinstance(scale.executor, _InlineExecutor) and bar is not None:
+        sink = _BarSink(bar)                # tasks run inside submit: update the bar as they report
     futures = {}
     try:
         for task in tasks:

@@ -2,20 +2,22 @@
 
 Parameters (``--param NAME=start:stop:n``, several give their Cartesian grid):
 
-* ``thickness.<family>`` -- notch thickness (um) of every hinge of a family (``fourbar1``,
-  ``fourbar2``, ``swing``, ``lever``, ``crank_bend``); stiffness follows Paros & Weisbord,
-  ``k ~ t^(5/2)`` (:func:`nanosim.plant.tolerances.notch_stiffness_ratio`), from the
-  family's nominal thickness (:func:`~nanosim.plant.tolerances.default_tolerances`);
-* ``stiffness.<family>`` -- stiffness (and damping) factor of a hinge family or a tendon
-  (``load_model(stiffness_scale=...)``; ``crank_bend`` scales the three crank-bend tendons);
+* ``thickness.<family>`` -- notch thickness (um) of every notch of a family (``fb1``, ``fb2``,
+  ``swing``, ``apa``; ``fourbar1``, ``fourbar2``, ``lever`` as aliases): the stage is rebuilt from
+  its geometry (:mod:`nanosim.plant.build`), every stiffness (Paros-Weisbord, Lobontiu) and mass
+  from it;
+* ``length_mm.<field>`` -- a length of the chain geometry in mm (``leg_length``, ``fb1_length``,
+  ``apa_arm``, ... of :class:`nanosim.plant.geometry.ChainGeometry`), rebuilt likewise;
+* ``stiffness.<family>`` -- stiffness (and damping) factor of a hinge family
+  (``load_model(stiffness_scale=...)``);
 * ``target_mass_g`` -- mass of the table body (table, target and mount), grams;
 * ``piezo_gain`` -- force-per-volt factor of the three actuators.
 
 Per point: the modes, the static gain and the travel (per axis, the span over the
-command box), a controller redesigned for that stage by the steps of
-``nanosim design`` (:func:`design_for_point`: DC-matched balanced truncation of
-the stage's linear twin with its piezo gain and creep, the inner damping loop,
-the paper's H-infinity weights, 4 kHz discretization), and the measured
+command box), a controller redesigned for that stage by the pipeline's rule
+(:func:`design_for_point`: the identification experiments on the stage's linear
+twin in the full electromechanics, then :func:`~nanosim.pipeline.design.run_design`
+with the default design settings or the command line's), and the measured
 bandwidth (PRBS, S and T) and closed-loop resolution on the point's linear twin
 in the full electromechanics (the registered ``bandwidth`` and ``resolution``
 experiments, points in lockstep). The points on the Pareto front of
@@ -25,6 +27,7 @@ the table of ``report.md``.
 from __future__ import annotations
 
 import itertools
+import json
 import math
 import time
 from pathlib import Path
@@ -39,10 +42,21 @@ from nanosim.pipeline.scaleout import open_executor, run_tasks
 __all__ = ["parse_param", "point_model", "design_for_point", "run_sweep", "pareto_front", "SWEEP_EXPERIMENTS"]
 
 SWEEP_EXPERIMENTS = ("bandwidth", "resolution")
-FAMILIES = ("fourbar1", "fourbar2", "swing", "lever", "crank_bend")
 FIG_PARETO = "fig_sweep_pareto.png"
 _LABELS = {"bandwidth_S_hz": "S bandwidth, measured [Hz]", "travel_um": "travel, smallest axis [um]",
            "resolution_nm": "closed-loop resolution sigma, X [nm]"}
+
+
+_ALIASES = {"fourbar1": "fb1", "fourbar2": "fb2", "lever": "apa"}
+FAMILIES = ("fb1", "fb2", "swing", "apa")
+
+
+def _chain_length_fields() -> list[str]:
+    from dataclasses import fields
+
+    from nanosim.plant.geometry import ChainGeometry
+
+    return [f.name[:-2] for f in fields(ChainGeometry) if f.name.endswith("_m")]
 
 
 def parse_param(text: str) -> tuple[str, float, float, int]:
@@ -51,10 +65,14 @@ def parse_param(text: str) -> tuple[str, float, float, int]:
         raise ValueError(f"--param: expected NAME=start:stop:n, got {text!r}")
     name, span = text.split("=", 1)
     name = name.strip()
-    known = [f"thickness.{f}" for f in FAMILIES] + [f"stiffness.{f}" for f in FAMILIES] + ["target_mass_g",
-                                                                                              "piezo_gain"]
-    if name not in known and not name.startswith("stiffness."):
-        raise ValueError(f"--param: unknown parameter {name!r}; expected one of {known} (or stiffness.<tendon>)")
+    kind, _, fam = name.partition(".")
+    fam = _ALIASES.get(fam, fam)
+    ok = (name in ("target_mass_g", "piezo_gain") or (kind in ("thickness", "stiffness") and fam in FAMILIES)
+          or (kind == "length_mm" and fam in _chain_length_fields()))
+    if not ok:
+        raise ValueError(f"--param: unknown parameter {name!r}; expected thickness.<family> or stiffness.<family> "
+                         f"(families {', '.join(FAMILIES)}), length_mm.<chain length> "
+                         f"({', '.join(_chain_length_fields())}), target_mass_g or piezo_gain")
     parts = span.split(":")
     try:
         start, stop, n = float(parts[0]), float(parts[1]), int(parts[2])
@@ -63,70 +81,88 @@ def parse_param(text: str) -> tuple[str, float, float, int]:
             from None
     if len(parts) != 3 or n < 1 or not (math.isfinite(start) and math.isfinite(stop)) or start <= 0 or stop <= 0:
         raise ValueError(f"--param {name}: expected positive start and stop and n >= 1, got {span!r}")
-    return name, start, stop, n
+    return f"{kind}.{fam}" if fam else name, start, stop, n
 
 
 def point_model(values: dict, mjcf=None):
-    """The MjModel of one sweep point (``{parameter: value}``)."""
-    from nanosim.plant.mjcf import load_model
-    from nanosim.plant.tolerances import default_tolerances, notch_stiffness_ratio
+    """The MjModel of one sweep point (``{parameter: value}``), from the bundled stage's geometry.
 
-    base = load_model(mjcf)
-    scale: dict[str, float] = {}
-    nominal_t = None
+    ``thickness.<family>`` (um) and ``length_mm.<field>`` change the geometry (the stage is rebuilt,
+    every stiffness and mass from it); ``stiffness.<family>`` scales a family's joints;
+    ``target_mass_g`` sets the ``table`` body; ``piezo_gain`` scales the actuators.
+    """
+    from dataclasses import replace
+
+    from nanosim.plant.geometry import CALIBRATED_GEOMETRY
+    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.tolerances import model_from_geometry
+
+    g = CALIBRATED_GEOMETRY
+    chain = {}
     for name, v in values.items():
         kind, _, fam = name.partition(".")
-        if kind in ("thickness", "stiffness"):
-            if kind == "thickness":
-                if nominal_t is None:
-                    nominal_t = {t.name: t.nominal for t in default_tolerances(base).tolerances}
-                notch = {"fourbar1": "crank_base", "fourbar2": "rocker_p_base", "swing": "h1", "lever": "lever",
-                         "crank_bend": "crank_bend"}[fam]
-                s = notch_stiffness_ratio(v, nominal_t[f"thickness.a_{notch}"])
-            else:
-                s = v
-            keys = [f"{c}_crank_bend" for c in "abc"] if fam == "crank_bend" else [fam]
-            for k in keys:
-                scale[k] = scale.get(k, 1.0) * s
-    masses = {"table": values["target_mass_g"] * 1e-3} if "target_mass_g" in values else None
-    model = load_model(mjcf, stiffness_scale=scale or None, body_mass_kg=masses)
+        if kind == "thickness":
+            nh = g.chain.notch(fam)
+            chain[f"{fam}_notch"] = nh.with_thickness(v * 1e-6)
+        elif kind == "length_mm":
+            chain[f"{fam}_m"] = v * 1e-3
+    if chain and mjcf is not None:
+        raise ValueError("--param: thickness and length parameters rebuild the bundled stage; pass no --mjcf")
+    kw = {"stiffness_scale": {name.split(".", 1)[1]: v for name, v in values.items() if name.startswith("stiffness.")}
+          or None,
+          "body_mass_kg": {"table": values["target_mass_g"] * 1e-3} if "target_mass_g" in values else None}
+    model = model_from_geometry(replace(g, chain=replace(g.chain, **chain)), **kw) if chain else load_model(mjcf, **kw)
     if "piezo_gain" in values:
         for c in "abc":
             model.actuator_gainprm[model.actuator(f"piezo_{c}").id, 0] *= values["piezo_gain"]
     return model
 
 
-def design_for_point(G_model, config: DesignConfig | None = None, dt: float = C.CONTROL_PERIOD_S):
-    """The discrete controller ``nanosim design`` would export for the model ``G_model`` (steps 1-5 of
-    :mod:`nanosim.pipeline.design`, without its files, figures and robustness analysis).
+def design_for_point(model, config: DesignConfig | None = None, seed: int = 0) -> tuple:
+    """The pipeline's controller for one stage, on its linear twin, in a scratch folder.
+
+    The identification experiments of ``nanosim identify`` (0 V operating point) run on the
+    stage's linear twin in the full electromechanics (a :class:`~nanosim.plant.batch.BatchTwinStage`
+    as the record runner), the identified model goes to
+    :func:`nanosim.pipeline.design.run_design` unchanged. Nothing is written outside the scratch
+    folder, so it runs on any worker.
 
     Returns
     -------
     ControllerConfig, dict
-        The controller and a few design figures (gamma, order, design bandwidths).
+        The exported discrete controller and a few figures of ``design.json`` and the identification.
     """
-    from nanosim.design.controller import ControllerConfig
-    from nanosim.design.damping import damped_plant, damping_loop
-    from nanosim.design.discretize import discretize_controller
-    from nanosim.design.hinf import design_hinf
-    from nanosim.design.loops import stack_inputs
-    from nanosim.design.reduction import reduce_model
-    from nanosim.design.weights import Weights
+    import tempfile
 
-    cfg = config or DesignConfig()
-    W = Weights.coerce(cfg.weights)
-    red = reduce_model(G_model, cfg.reduced_order)
-    dl = damping_loop(red.G_reduced, cfg.damping_zeta, lowpass_hz=cfg.damping_lowpass_hz) \
-        if cfg.has_damping_loop else None
-    d = design_hinf(damped_plant(red.G_reduced, dl), W, gamma_relax=cfg.gamma_relax)
-    Kd = discretize_controller(d.K, dt, cfg.discretization).Kd
-    if dl is not None:
-        Kd = stack_inputs(Kd, discretize_controller(dl.Ky, dt, "tustin_modal").Kd)
-    ny = G_model.noutputs
-    ctrl = ControllerConfig(np.asarray(Kd.A), np.asarray(Kd.B), np.asarray(Kd.C), np.asarray(Kd.D), dt,
-                            n_error=ny)
-    return ctrl, {"gamma": float(d.gamma), "controller_order": int(ctrl.n_states),
-                  "design_bandwidth_S_hz": float(d.bandwidth_S_hz), "design_bandwidth_T_hz": float(d.bandwidth_T_hz)}
+    from nanosim.design.controller import DiscreteController
+    from nanosim.experiments.sysid import IdentifySettings, identify_stage
+    from nanosim.fileio import write_npz
+    from nanosim.pipeline.design import run_design
+    from nanosim.pipeline.identify import save_model
+    from nanosim.plant.batch import BatchTwinStage
+    from nanosim.plant.floor import floor_model
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.stage import Stage, StageConfig
+
+    mech = linearize(Stage(config=StageConfig.ideal(), model=model))
+    home, fm = Stage(model=model).table_um.copy(), floor_model(model)
+
+    def runner(u_batch, *, seeds, config=None, model=None):        # run_open_loop_batch's call, on the twin
+        return BatchTwinStage(mech, seeds, config=config, home_um=home, floor_models=fm).run(u_batch)
+
+    ident = identify_stage(IdentifySettings(seed=seed), model=model, runner=runner)
+    with tempfile.TemporaryDirectory(prefix="nanosim-sweep-") as tmp:
+        tmp = Path(tmp)
+        save_model(tmp / "model.npz", ident)
+        t = mech.sys_V
+        write_npz(tmp / "twin.npz", A=t.A, B=t.B, C=t.C, D=t.D, dt=mech.dt_s)
+        run_design(tmp / "model.npz", tmp, config or DesignConfig(), twin=str(tmp / "twin.npz"))
+        ctrl = DiscreteController.from_npz(tmp / "controller.npz").config
+        des = json.loads((tmp / "design.json").read_text())
+    return ctrl, {"gamma": des.get("gamma"), "controller_order": int(ctrl.n_states),
+                  "design_bandwidth_S_hz": des.get("bandwidth_S_hz"),
+                  "design_bandwidth_T_hz": des.get("bandwidth_T_hz"),
+                  "identification_fit_min_percent": float(np.min(ident.fit_percent))}
 
 
 def run_points(task: dict, points: list, sink) -> list[dict]:
@@ -140,7 +176,7 @@ def run_points(task: dict, points: list, sink) -> list[dict]:
     from nanosim.plant.stage import Stage, StageConfig
 
     experiments.load_builtin()
-    design_cfg = DesignConfig(**task["design"])
+    design_cfg = task["design"]
     recs, plants, ctrls = [], [], []
     with single_threaded_blas():
         for idx, values in points:
@@ -150,18 +186,28 @@ def run_points(task: dict, points: list, sink) -> list[dict]:
             G0 = modes.static_gain_um_per_V
             span = C.COMMAND_RANGE_V[1] - C.COMMAND_RANGE_V[0]
             travel = span * np.abs(G0).sum(axis=1)
-            ctrl, des = design_for_point(linearize(Stage(model=model), include_piezo=True).sys_V, design_cfg)
+            try:
+                ctrl, des = design_for_point(model, design_cfg, seed=task["seed"])
+            except (ValueError, np.linalg.LinAlgError) as exc:     # a design rule that fails at this point
+                ctrl, des = None, {"design_error": f"{type(exc).__name__}: {exc}"}
             rec = {"index": idx, "values": values, "modes_hz": [m.freq_hz for m in modes.below(1000.0)],
                    "static_gain_um_per_V": G0.tolist(), "travel_xyz_um": travel.tolist(),
                    "travel_um": float(travel.min()), **des, "design_seconds": round(time.perf_counter() - t0, 2)}
-            plants.append(MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=model)),
+            plants.append(MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=model)), model=model,
                                       home_um=Stage(model=model).table_um.copy(), static_gain_um_per_V=G0))
             ctrls.append(ctrl)
             recs.append(rec)
             sink.put(1)
-        metrics, _ = run_experiments_batch(list(SWEEP_EXPERIMENTS), plants, ctrls, seed=task["seed"], exact=True,
-                                           nthread=1,
+        ok = [i for i, c in enumerate(ctrls) if c is not None]
+        metrics = [{} for _ in recs]
+        if ok:
+            got, _ = run_experiments_batch(list(SWEEP_EXPERIMENTS), [plants[i] for i in ok], [ctrls[i] for i in ok],
+                                           seed=task["seed"], exact=True, nthread=1,
                                            progress=lambda name: sink.put(len(points)))
+            for i, m in zip(ok, got):
+                metrics[i] = m
+        else:
+            sink.put(len(points) * len(SWEEP_EXPERIMENTS))
     for rec, met in zip(recs, metrics):
         flat = flatten_metrics(met)
         rec["metrics"] = met
@@ -202,10 +248,7 @@ def run_sweep(out, config: SweepConfig, *, progress: bool = True, say=None) -> d
     axes = [(name, np.linspace(a, b, n)) for name, a, b, n in config.params]
     grid = [dict(zip([n for n, _ in axes], (float(x) for x in combo)))
             for combo in itertools.product(*[v for _, v in axes])]
-    task = {"seed": config.seed, "mjcf": str(config.mjcf) if config.mjcf else None,
-            "design": {f: getattr(config.design, f) for f in ("reduced_order", "damping_zeta", "damping_lowpass_hz",
-                                                               "discretization", "gamma_relax")}
-            | {"weights": str(config.design.weights) if config.design.weights else None}}
+    task = {"seed": config.seed, "mjcf": str(config.mjcf) if config.mjcf else None, "design": config.design}
     records: list[dict] = []
     t0 = time.perf_counter()
     with open_executor(config.scheduler, config.workers) as scale:
@@ -247,8 +290,9 @@ def _report(doc: dict) -> str:
     lines = ["# Flexure design sweep", "",
              "Parameters: " + "; ".join(f"`{p['name']}` = {', '.join(f'{x:.4g}' for x in p['values'])}"
                                         for p in doc["parameters"]), "",
-             "Each point: modes, static gain and travel of the stage; a controller redesigned for it (the steps of "
-             "`nanosim design`); bandwidth (PRBS, S) and closed-loop resolution measured on its linear twin with "
+             "Each point: modes, static gain and travel of the stage; a controller redesigned for it by the "
+             "pipeline's rule (the identification experiments on its linear twin, then `nanosim design` with the "
+             "default settings); bandwidth (PRBS, S) and closed-loop resolution measured on its linear twin with "
              "every electromechanical effect on. Pareto front: bandwidth up, travel up, resolution sigma down.", "",
              f"![Pareto figure]({FIG_PARETO})", "",
              "| # | point | first mode [Hz] | travel [um] | S bandwidth [Hz] | T bandwidth [Hz] | resolution [nm] | "

@@ -61,7 +61,7 @@ class _BatchFloor:
     floor model; ``x+ = Ad x + Bd a``, displacement ``Cd x+`` (stacked products, one ``gemv`` per member).
     """
 
-    def __init__(self, models, config: FloorConfig, seeds):
+    def __init__(self, models, config: FloorConfig, seeds, exact: bool = True):
         self.active = config.enabled and config.accel_psd_m2_s4_Hz > 0
         self._seeds = list(seeds)
         if not self.active:
@@ -70,6 +70,10 @@ class _BatchFloor:
         self._Bd = np.stack([m.Bd for m in models])
         self._Cd = np.stack([m.Cd for m in models])
         self._sigma = [float(np.sqrt(config.accel_psd_m2_s4_Hz / (2.0 * m.dt_s))) for m in models]
+        self._P = None
+        if not exact:            # [x+; d] = [[Ad, Bd], [Cd Ad, Cd Bd]] [x; a] in one product
+            self._P = np.concatenate([np.concatenate([self._Ad, self._Bd], axis=2),
+                                      np.concatenate([self._Cd @ self._Ad, self._Cd @ self._Bd], axis=2)], axis=1)
         self.reset()
 
     def reset(self) -> None:
@@ -88,6 +92,11 @@ class _BatchFloor:
             self._i = 0
         a = self._buf[self._i]
         self._i += 1
+        if self._P is not None:
+            nx = self._x.shape[1]
+            out = np.matmul(self._P, np.concatenate([self._x, a], axis=1))
+            self._x = out[:, :nx]
+            return out[:, nx:, 0]
         self._x = np.matmul(self._Ad, self._x) + np.matmul(self._Bd, a)
         return np.matmul(self._Cd, self._x)[:, :, 0]
 
@@ -106,8 +115,8 @@ class _BatchStageBase:
     def reset(self) -> None:
         """Home state, virgin piezos, noise streams rewound (every member)."""
         self.electronics = BatchElectronics(self.config.electronics, self.config.piezo, self.seeds)
-        self.floor = _BatchFloor(self._floor_models, self.config.floor, self.seeds) if self._floor_models \
-            else None
+        self.floor = _BatchFloor(self._floor_models, self.config.floor, self.seeds, getattr(self, "exact", True)) \
+            if self._floor_models else None
         self.time_s = 0.0
         self.last_piezo_V = np.zeros((self.n, 3))
         self.last_saturated = np.zeros((self.n, 3), dtype=bool)
