@@ -165,6 +165,15 @@ def _cmd_pipeline(args) -> int:
     cfg = PipelineConfig(seed=args.seed, mjcf=args.mjcf, identify=IdentifyConfig(seed=args.seed),
                          design=_design_config(args))
     t0 = time.perf_counter()
+    if args.seeds:                              # several seeds, batched (nanosim.pipeline.seeds)
+        from nanosim.pipeline.seeds import parse_seeds, run_pipeline_seeds
+        seeds = parse_seeds(args.seeds)
+        with staged_run(args.out, seed=seeds[0]) as stage:
+            doc = run_pipeline_seeds(stage, seeds, cfg)
+        print(f"pipeline done in {time.perf_counter() - t0:.1f} s for seeds {args.seeds}: checked quantities inside "
+              f"their bands: mean {doc['in_band_mean']:.1f}, worst seed {doc['in_band_worst']} of {doc['banded']}; "
+              f"report: {Path(args.out) / A.REPORT_MD}")
+        return 0
     with staged_run(args.out, seed=args.seed) as stage:
         run_pipeline(stage, cfg)
         n_ok, n_band = pass_count(stage)
@@ -275,6 +284,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl = sub.add_parser("pipeline", help="run the whole chain on the bundled stage")
     pl.add_argument("--out", required=True, help="run folder for artifacts")
     pl.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
+    pl.add_argument("--seeds", default=None, metavar="0-4", help="several seeds (a range or a list), batched; "
+                                                                  "one folder per seed and a summary report")
     pl.add_argument("--mjcf", default=None, type=_file)
     _add_design_arguments(pl)
     pl.set_defaults(func=_cmd_pipeline)
