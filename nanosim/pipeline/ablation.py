@@ -83,8 +83,8 @@ def ablation_rows() -> list[AblationRow]:
     e, p = v2.electronics, v2.piezo
     rows = [
         AblationRow("v2", "every element on (the prediction)", v2),
-        AblationRow("delay 0", "computation delay 0 samples (default 1)",
-                    replace(v2, electronics=replace(e, computation_delay_samples=0))),
+        AblationRow("delay 1", "computation delay 1 sample (default 0)",
+                    replace(v2, electronics=replace(e, computation_delay_samples=1))),
         AblationRow("delay 2", "computation delay 2 samples",
                     replace(v2, electronics=replace(e, computation_delay_samples=2))),
         AblationRow("no amplifier bandwidth", "amplifier instantaneous (default 10 kHz)",
