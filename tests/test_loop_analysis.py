@@ -595,7 +595,8 @@ def test_analyze_controller_on_the_loop_as_run():
     assert res.delay_samples == 1 and res.robust is not None
     assert res.summary["mu_peak"] >= res.summary["mu_lower_peak"] * (1 - 1e-9)
     back = json.loads(json.dumps(res.to_dict(), allow_nan=False))
-    assert back["uncertainty_set"]["delay_samples_range"] == [0, 1]
+    assert back["uncertainty_set"]["extra_delay_samples_range"] == [0, 1]
+    assert res.robust.sampled_worst_parameters["delay_samples"] in (1, 2)     # the loop's 1 + (0 or 1)
     # the 2-DOF split and the error-only form agree on the feedback operator K - Ky
     Kc, Kyc = la.controller_systems(K2, n_error=3)
     np.testing.assert_allclose(la.frequency_response(Kc - Kyc, f), la.frequency_response(K - Ky, f), atol=1e-9)

@@ -2,8 +2,8 @@
 
 Uncertainty set (issue 13): piezo gain per input channel 0.75 ... 1.0 of nominal (the
 hysteresis slope after a reversal is about 0.75 of the nominal slope), every modal
-frequency +-3 %, every modal damping x0.5 ... x2, and a computation delay of 0 ... 1
-sample (the loop as run has 1, the paper's design model 0).  :data:`STAGE_UNCERTAINTY`
+frequency +-3 %, every modal damping x0.5 ... x2, and 0 ... 1 sample of computation delay
+beyond the loop as run (whose own delays are in the plant).  :data:`STAGE_UNCERTAINTY`
 holds it; :func:`robust_stability_mu` covers it by complex blocks and brute-forces its
 vertices; :func:`perturbed_plant` builds one member.  Loop conventions: :mod:`~nanosim.design.loopresponse`.
 """
@@ -53,21 +53,20 @@ class UncertaintySet:
         Factor on every modal natural frequency.
     damping_scale_range : (float, float)
         Factor on every modal damping ratio.
-    delay_samples_range : (int, int)
-        Computation delay [samples], absolute (the nominal loop's delay is set apart,
-        :meth:`mu_kwargs`).
+    extra_delay_samples_range : (int, int)
+        Computation delay beyond the nominal loop's [samples] (:meth:`mu_kwargs`).
     """
 
     input_gain_range: tuple = (0.75, 1.0)
     freq_scale_range: tuple = (0.97, 1.03)
     damping_scale_range: tuple = (0.5, 2.0)
-    delay_samples_range: tuple = (0, 1)
+    extra_delay_samples_range: tuple = (0, 1)
 
     def __post_init__(self):
         check_range("input_gain_range", self.input_gain_range)
         check_range("freq_scale_range", self.freq_scale_range)
         check_range("damping_scale_range", self.damping_scale_range)
-        check_range("delay_samples_range", self.delay_samples_range, positive=False, integer=True)
+        check_range("extra_delay_samples_range", self.extra_delay_samples_range, positive=False, integer=True)
 
     def mu_kwargs(self, nominal_delay_samples: int) -> dict:
         """Keyword arguments of :func:`robust_stability_mu` for a loop whose nominal delay
@@ -75,14 +74,16 @@ class UncertaintySet:
         """
         return {"input_gain_range": tuple(self.input_gain_range), "freq_scale_range": tuple(self.freq_scale_range),
                 "damping_scale_range": tuple(self.damping_scale_range),
-                "delay_samples_range": tuple(int(v) for v in self.delay_samples_range),
+                "delay_samples_range": tuple(check_delay(nominal_delay_samples) + int(v)
+                                             for v in self.extra_delay_samples_range),
                 "nominal_delay_samples": check_delay(nominal_delay_samples)}
 
     def to_dict(self) -> dict:
         """JSON-ready description (units in the keys)."""
-        out = {k if k == "delay_samples_range" else f"{k}_factor": list(v) for k, v in asdict(self).items()}
+        out = {k if k == "extra_delay_samples_range" else f"{k}_factor": list(v) for k, v in asdict(self).items()}
         out["meaning"] = ("piezo gain per input channel (hysteresis slope after a reversal ~0.75 of nominal), "
-                          "every modal frequency and damping ratio scaled, total computation delay")
+                          "every structural mode's frequency and damping ratio scaled (pairs with zeta < 0.3 up to "
+                          "1 kHz, real poles), computation delay beyond the loop as run")
         return out
 
 

@@ -376,7 +376,8 @@ def _robustness_blocks(run: Path) -> list:
     rob = _load(run, A.ROBUSTNESS_JSON)
     if not rob.get("plants"):
         return []
-    keys = [("loop_delay_samples", "delay beyond the model [samples]"), ("peak_So", "peak sigma_max(S_o)"), ("peak_Si", "peak sigma_max(S_i)"), ("peak_To", "peak sigma_max(T_o)"),
+    keys = [("loop_delay_samples", "delay beyond the model [samples]"), ("peak_So", "peak sigma_max(S_o)"),
+            ("peak_Si", "peak sigma_max(S_i)"), ("peak_To", "peak sigma_max(T_o)"),
             ("peak_KS", "peak sigma_max(KS) [V/V]"), ("peak_SG", "peak sigma_max(SG) [V/V]"),
             ("dm_input_alpha", "multiloop disk margin, input"), ("dm_output_alpha", "multiloop disk margin, output"),
             ("dm_input_output_alpha", "disk margin, input + output"),
@@ -390,8 +391,9 @@ def _robustness_blocks(run: Path) -> list:
             ("p", "The exported discrete controller on the loop as run, with the linear twin (bench delays and filters "
                   "added) and with the identified model (robustness.json). Uncertainty set: piezo gain per channel "
                   f"{u.get('input_gain_range_factor')}, modal frequencies x{u.get('freq_scale_range_factor')}, "
-                  f"modal damping x{u.get('damping_scale_range_factor')}, delay {u.get('delay_samples_range')} "
-                  "samples; robustly stable if the mu peak is below 1 and every sampled spectral radius below 1."),
+                  f"modal damping x{u.get('damping_scale_range_factor')}, delay +{u.get('extra_delay_samples_range')} "
+                  "samples beyond the loop as run; robustly stable if the mu peak is below 1 and every sampled "
+                  "spectral radius below 1."),
             ("table", ["quantity"] + [plants[k].get("plant", k) for k in plants],
              [[lab] + [_fmt(plants[k].get(key)) for k in plants] for key, lab in keys], None)]
 

@@ -119,7 +119,7 @@ def plot_disk_margins(analyses, target_alpha: float = 0.4, title: str = "Disk ma
     unc = next((a.uncertainty for _, a in items if a.uncertainty is not None), None)
     axm.set_title("robust stability over the uncertainty set" + ("" if unc is None else
                   f": gain {unc.input_gain_range}, f x{unc.freq_scale_range}, zeta x{unc.damping_scale_range}, "
-                  f"delay {unc.delay_samples_range} samples"), fontsize=9)
+                  f"delay +{unc.extra_delay_samples_range} samples"), fontsize=9)
     axm.grid(True, which="both", alpha=0.3)
     if any(a.robust is not None for _, a in items):
         axm.legend(fontsize=7, loc="upper left")
