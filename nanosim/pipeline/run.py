@@ -6,8 +6,10 @@ a run folder is complete or untouched.
 """
 from __future__ import annotations
 
+import multiprocessing
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -80,6 +82,16 @@ def step_report(out: Path) -> None:
 PIPELINE_STEPS = ("modes", "identify", "design", "characterize", "characterize_twin", "report")
 
 
+def _characterize_twin(out: str, seed: int, mjcf) -> float:
+    """The twin's experiments (run in a worker process); returns their wall time [s]."""
+    from nanosim.pipeline.characterize import run_characterize
+
+    t0 = time.perf_counter()
+    run_characterize(Path(out) / A.CONTROLLER_NPZ, Path(out) / A.TWIN_DIR, CharacterizeConfig(seed=seed, twin=True),
+                     mjcf=mjcf, progress=False)
+    return round(time.perf_counter() - t0, 2)
+
+
 def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: bool = True) -> dict:
     """Run every step into ``out`` (normally a staging folder); returns ``pipeline.json``'s content."""
     cfg = config or PipelineConfig()
@@ -103,9 +115,8 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=len(names), desc="nanosim pipeline", unit="step", file=sys.stderr)
-    for name in names:
-        if name == "report":    # the report reads pipeline.json
-            write_json(out / A.PIPELINE_JSON, {"stage_seconds": timings, "seed": cfg.seed})
+
+    def timed(name):
         if bar:
             bar.set_postfix_str(f"running {name}")
         t0 = time.perf_counter()
@@ -113,6 +124,32 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
         timings[name] = round(time.perf_counter() - t0, 2)
         if bar:
             bar.update(1)
+
+    # Independent steps run side by side (no experiment is shortened): the modes beside the
+    # identification (a thread), the twin's experiments beside the MuJoCo ones (a process of its
+    # own, so the two do not compete for the GIL; results do not depend on it).
+    t_start = time.perf_counter()
+    with ThreadPoolExecutor(1) as side:
+        modes = side.submit(timed, "modes")
+        timed("identify")
+        modes.result()
+    timed("design")
+    twin = None
+    if "characterize_twin" in names:
+        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        twin = pool.submit(_characterize_twin, str(out), cfg.seed, None if cfg.mjcf is None else str(cfg.mjcf))
+    try:
+        timed("characterize")
+        if twin is not None:
+            timings["characterize_twin"] = twin.result()
+            if bar:
+                bar.update(1)
+    finally:
+        if twin is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+    timings["overlapped_wall"] = round(time.perf_counter() - t_start, 2)
+    write_json(out / A.PIPELINE_JSON, {"stage_seconds": timings, "seed": cfg.seed})   # the report reads it
+    timed("report")
     if bar:
         bar.close()
     result = {"stage_seconds": timings, "seed": cfg.seed}
