@@ -49,7 +49,8 @@ def _coeffs(name: str, what: str, value) -> tuple[float, ...]:
     except (TypeError, ValueError):
         raise ValueError(f"{name}.{what}: expected a list of numbers, got {value!r}") from None
     if arr.ndim != 1 or arr.size == 0:
-        raise ValueError(f"{name}.{what}: expected a non-empty 1-D list of polynomial coefficients, got shape {arr.shape}")
+        raise ValueError(f"{name}.{what}: expected a non-empty 1-D list of polynomial coefficients, "
+                         f"got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}.{what}: coefficients must be finite, got {arr.tolist()}")
     nz = np.flatnonzero(arr)
@@ -164,7 +165,8 @@ class WeightSpec:
         for p in np.unique(np.round(self.poles(), 12)):
             on_axis = abs(p.real) <= _AXIS_RTOL * max(1.0, abs(p))
             if on_axis:
-                what = "an integrator 1/s" if abs(p) <= _AXIS_RTOL else f"an undamped mode at {abs(p.imag) / (2 * np.pi):.4g} Hz"
+                what = ("an integrator 1/s" if abs(p) <= _AXIS_RTOL
+                        else f"an undamped mode at {abs(p.imag) / (2 * np.pi):.4g} Hz")
                 raise ValueError(
                     f"{nm} (weight on {role}) has a pole on the imaginary axis at s = {p:.4g} rad/s ({what}). "
                     f"The H-infinity synthesis needs weights with all poles strictly in the left half plane: "
@@ -289,7 +291,8 @@ class Weights:
             return cls.from_dict(value)
         if isinstance(value, (str, os.PathLike)):
             return cls.from_file(value)
-        raise ValueError(f"weights: expected None, Weights, a mapping or a .json/.toml path, got {type(value).__name__}")
+        raise ValueError("weights: expected None, Weights, a mapping or a .json/.toml path, "
+                         f"got {type(value).__name__}")
 
     def to_dict(self) -> dict:
         """``{"Wp": {...}, "Wt": {...}, "Wu": {...}}`` with num/den/power lists

@@ -26,7 +26,8 @@ def fig_hysteresis(r):
     ax[1].plot(r.closed_levels_um, (r.closed_down_um - r.closed_levels_um) * 1e3, "s--", label="settled, going down")
     ax[1].set_xlabel("X reference (um)")
     ax[1].set_ylabel("X output - reference (nm)")
-    ax[1].set_title(f"(b) closed loop: settled hysteresis {r.closed_loop_nm:.1f} nm, ramp lag {r.closed_ramp_lag_nm:.0f} nm")
+    ax[1].set_title(f"(b) closed loop: settled hysteresis {r.closed_loop_nm:.1f} nm, "
+                    f"ramp lag {r.closed_ramp_lag_nm:.0f} nm")
     ax[1].legend(fontsize=8, loc="center", bbox_to_anchor=(0.5, 0.7))   # in the empty band above the settled points
     ax[1].grid(alpha=0.3)
     return fig
@@ -152,7 +153,8 @@ def fig_contouring(cases):
     e = fast.trace.error_um
     ax[1].plot(fast.trace.t_s * 1e3, e[:, 0], label="X tracking error")
     ax[1].plot(fast.trace.t_s * 1e3, e[:, 1], "--", label="Y tracking error")
-    ax[1].plot(fast.trace.t_s * 1e3, (fast.trace.y_um[:, 0] - fast.trace.y_um[:, 1]) / np.sqrt(2), label="contour error")
+    contour_um = (fast.trace.y_um[:, 0] - fast.trace.y_um[:, 1]) / np.sqrt(2)
+    ax[1].plot(fast.trace.t_s * 1e3, contour_um, label="contour error")
     ax[1].set_xlabel("time (ms)")
     ax[1].set_ylabel("error (um)")
     ax[1].set_title(f"(b) following errors at {fast.speed_um_s:g} um/s", fontsize=10)
