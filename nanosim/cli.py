@@ -229,13 +229,47 @@ def _cmd_sweep(args) -> int:
     return 0
 
 
+def _seed_list(text: str) -> tuple:
+    """``0-4`` or ``0,3,7`` -> distinct seeds (for ``nanosim compare``)."""
+    out = []
+    try:
+        for part in text.split(","):
+            a, _, b = part.strip().partition("-")
+            lo, hi = int(a), int(b or a)
+            if lo < 0 or hi < lo:
+                raise ValueError
+            out += [s for s in range(lo, hi + 1) if s not in out]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a range like 0-4 or a list like 0,3,7 of integers >= 0, "
+                                         f"got {text!r}") from None
+    return tuple(out)
+
+
+def _cmd_compare(args) -> int:
+    from nanosim.pipeline.compare import run_compare
+    from nanosim.pipeline.config import CompareConfig
+    from nanosim.pipeline.runfolder import staged_run
+
+    cfg = CompareConfig(controllers=tuple(args.controllers), seeds=args.seeds, twin=args.twin,
+                        only=tuple(args.only) if args.only else None, model=args.model,
+                        robustness=not args.no_robustness)
+    t0 = time.perf_counter()
+    with staged_run(args.out, seed=cfg.seeds[0]) as stage:
+        doc = run_compare(stage, cfg, mjcf=args.mjcf, progress=_say)
+    met = ", ".join(f"{n} {v['acceptance_met']}/{v['acceptance_total']}" for n, v in doc["controllers"].items())
+    print(f"compare done in {time.perf_counter() - t0:.1f} s; criteria met on every seed: {met}; default by the "
+          f"rule: {doc['default']}; scorecard: {Path(args.out) / A.SCORECARD_MD}")
+    return 0
+
+
 # --- parser --------------------------------------------------------------------------------
 def _add_design_arguments(parser) -> None:
     parser.add_argument("--weights", default=None, type=_file,
                         help="JSON or TOML file with Wp, Wt, Wu (default: the paper's)")
     parser.add_argument("--reduced-order", dest="reduced_order", type=_int_at_least(1),
                         default=DEFAULT_REDUCED_ORDER,
-                        help=f"states of the design model (default {DEFAULT_REDUCED_ORDER}; paper {PAPER_REDUCED_ORDER})")
+                        help=f"states of the design model (default {DEFAULT_REDUCED_ORDER}; "
+                             f"paper {PAPER_REDUCED_ORDER})")
     parser.add_argument("--damping-zeta", dest="damping_zeta", type=_float_in(0.0, 1.0),
                         default=DEFAULT_DAMPING_ZETA,
                         help="damping ratio the inner active-damping loop adds to the first mode "
@@ -315,6 +349,22 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--mjcf", default=None, type=_file)
     _add_design_arguments(sw)
     sw.set_defaults(func=_cmd_sweep)
+    cp = sub.add_parser("compare", help="controllers through the Section 5 suite and the robustness analysis, "
+                                        "scored (scorecard.md/.html/.json)")
+    cp.add_argument("--controllers", nargs="+", required=True, metavar="CTRL",
+                    help="bench names (paper, hinf-damped, pi-notch, damping-tracking, robust, feedforward), "
+                         ".npz/.mat state spaces (A, B, C, D, dt) or module:function returning a controller object")
+    cp.add_argument("--seeds", type=_seed_list, default=(0,), help="seeds, a range like 0-4 or a list (default 0)")
+    cp.add_argument("--out", required=True, help="run folder for the scorecard")
+    cp.add_argument("--model", default=None, help="identified model.npz (or a run folder holding one) for the "
+                                                   "bench designs and the analysis (default: identify on the first "
+                                                   "seed)")
+    cp.add_argument("--twin", action="store_true", help="run against the linear twin (same electromechanics)")
+    cp.add_argument("--only", nargs="+", default=None, metavar="EXP", help="run only these registered experiments")
+    cp.add_argument("--no-robustness", dest="no_robustness", action="store_true",
+                    help="skip robustness.json (the mu analysis takes ~10 s per controller)")
+    cp.add_argument("--mjcf", default=None, type=_file)
+    cp.set_defaults(func=_cmd_compare)
     from nanosim.viewer import add_view_arguments, run_view
     v = sub.add_parser("view", help="browser 3D view (viser)")
     add_view_arguments(v)

@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 __all__ = ["Artifact", "FIGURES", "figure", "MODES_JSON", "MODES_DIR", "MODEL_NPZ", "model_at_npz", "IDENTIFY_JSON",
            "TWIN_NPZ", "CONTROLLER_NPZ", "REDUCED_MODEL_NPZ", "DESIGN_JSON", "DESIGN_MAT", "METRICS_JSON",
-           "PIPELINE_JSON", "REPORT_MD", "REPORT_HTML", "TWIN_DIR", "ROBUSTNESS_JSON"]
+           "PIPELINE_JSON", "REPORT_MD", "REPORT_HTML", "TWIN_DIR", "ROBUSTNESS_JSON", "SCORECARD_JSON", "SCORECARD_MD",
+           "SCORECARD_HTML", "COMPARE_FIGURES"]
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,16 @@ PIPELINE_JSON = "pipeline.json"
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
 TWIN_DIR = "twin"
+# nanosim compare (nanosim.pipeline.compare): the scorecard and its overlaid figures
+SCORECARD_JSON = "scorecard.json"
+SCORECARD_MD = "scorecard.md"
+SCORECARD_HTML = "scorecard.html"
+COMPARE_FIGURES: tuple[tuple[str, str], ...] = (
+    ("compare_loops.png", "sigma_max of S_o and T_o, identified model with the one-sample delay"),
+    ("compare_step.png", "2 um step, first seed"),
+    ("compare_contour.png", "Contour error at 1000 um/s, first seed"),
+    ("compare_psd.png", "Closed-loop PSD of the X reading at rest, first seed"),
+)
 
 
 def model_at_npz(piezo_offset_V: float) -> str:

@@ -12,7 +12,8 @@ from dataclasses import dataclass, field, replace
 from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_REDUCED_ORDER
 
 __all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConfig", "MonteCarloConfig",
-           "SweepConfig", "DEFAULT_REDUCED_ORDER", "DEFAULT_DAMPING_ZETA", "DEFAULT_DAMPING_LOWPASS_HZ"]
+           "SweepConfig", "CompareConfig", "DEFAULT_REDUCED_ORDER", "DEFAULT_DAMPING_ZETA",
+           "DEFAULT_DAMPING_LOWPASS_HZ"]
 
 # 14 states: the Hankel singular values fall 27x after state 12, and states 13-14 (the
 # 1 s creep stage) move the full-model S bandwidth from 27.9 to 29.7 Hz (README, "Controller").
@@ -233,3 +234,49 @@ class SweepConfig:
     def __post_init__(self):
         _check_seed(self.seed)
         _check_count("workers", self.workers, 1, allow_none=True)
+
+
+@dataclass(frozen=True)
+class CompareConfig:
+    """Settings of ``nanosim compare`` (:mod:`nanosim.pipeline.compare`).
+
+    Attributes
+    ----------
+    controllers : tuple of str
+        Bench names (``nanosim.design.architectures.BENCH``), ``.npz``/``.mat`` state spaces or
+        ``module:function`` controller objects.
+    seeds : tuple of int
+        Every controller runs the suite on each seed.
+    twin : bool
+        The linear twin (same electromechanics) instead of MuJoCo.
+    only : tuple of str or None
+        Registered experiments to run (default: all).
+    model : path or None
+        Identified ``model.npz`` (or a run folder holding one) for the bench designs and the analysis;
+        None identifies the stage on the first seed.
+    robustness : bool
+        Write each linear controller's ``robustness.json`` (mu included).
+    workers : int or None
+        Threads for one controller's experiments (default: up to 2).
+    """
+
+    controllers: tuple = ()
+    seeds: tuple = (0,)
+    twin: bool = False
+    only: tuple | None = None
+    model: str | os.PathLike | None = None
+    robustness: bool = True
+    workers: int | None = None
+
+    def __post_init__(self):
+        if not self.controllers or not all(isinstance(c, str) and c for c in self.controllers):
+            raise ValueError(f"controllers: expected one or more names, files or module:function, "
+                             f"got {self.controllers!r}")
+        if not self.seeds:
+            raise ValueError("seeds: expected at least one seed")
+        for s in self.seeds:
+            _check_seed(s)
+        if len(set(self.seeds)) != len(self.seeds):
+            raise ValueError(f"seeds: expected distinct seeds, got {self.seeds!r}")
+        if self.workers is not None and (not isinstance(self.workers, int) or self.workers < 1):
+            raise ValueError(f"workers: expected a positive integer, got {self.workers!r}")

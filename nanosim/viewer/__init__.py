@@ -15,6 +15,9 @@ def add_view_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``view`` options to ``parser``."""
     parser.add_argument("--controller", metavar="FILE", default=None,
                         help="controller .npz (DiscreteController); without it the stage runs open loop")
+    parser.add_argument("--bench", metavar="DIR", default=None,
+                        help="nanosim compare run folder: its controllers in a dropdown, switched live without a "
+                             "kick (without --controller the scorecard's default runs first)")
     parser.add_argument("--port", type=int, default=8080,
                         help="HTTP/websocket port (default 8080; 0 picks a free port and prints it)")
     parser.add_argument("--host", default="127.0.0.1",
@@ -72,7 +75,7 @@ def run_view(args) -> int:
     try:
         from nanosim.viewer.server import ViewerApp
         app = ViewerApp(model_path=args.mjcf, controller_path=args.controller, host=host, port=port,
-                        physics=getattr(args, "physics", "auto"))
+                        physics=getattr(args, "physics", "auto"), bench=getattr(args, "bench", None))
     except (FileNotFoundError, ValueError) as exc:
         return _error(str(exc))
     if not port_is_free(host, port):

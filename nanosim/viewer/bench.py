@@ -61,11 +61,14 @@ def bumpless_state(controller: DiscreteController, measurement_V, command_V) -> 
     u_eq = c.Ckd @ x_eq + c.Dkd @ inp
     lam, V = np.linalg.eig(c.Akd)
     order = np.argsort(np.abs(1.0 - lam))
-    k = min(n, max(c.n_out, 1) * 2)
-    Vs = V[:, order[:k]]
-    M = c.Ckd @ Vs
-    coef, *_ = np.linalg.lstsq(M, (u_target - u_eq).astype(complex), rcond=None)
-    dx = (Vs @ coef).real
+    du = (u_target - u_eq).astype(complex)
+    dx = np.zeros(n)
+    for k in range(min(n, c.n_out), n + 1):      # as few (as slow) modes as reproduce the command
+        Vs = V[:, order[:k]]
+        coef, *_ = np.linalg.lstsq(c.Ckd @ Vs, du, rcond=None)
+        dx = (Vs @ coef).real
+        if np.abs(c.Ckd @ dx - du.real).max() <= 1e-9 * max(1.0, np.abs(du).max()):
+            break
     return x_eq + dx
 
 

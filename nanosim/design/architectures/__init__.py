@@ -1,0 +1,75 @@
+"""The controller bench: six architectures, each a pure function of the identified model.
+
+``design_X(G, *, dt=250e-6, delay_samples=1, ...) -> BenchDesign`` (a discrete
+``Akd, Bkd, Ckd, Dkd, dt, n_error`` controller with its tuning rule), for
+
+* ``paper`` (:mod:`.paper`) -- the paper's 10-state single-loop H-infinity design;
+* ``hinf-damped`` (:mod:`.hinf_damped`) -- H-infinity around an inner damping loop, delay-aware;
+* ``pi-notch`` (:mod:`.pi_notch`) -- decoupled PI with notches (the industry baseline);
+* ``damping-tracking`` (:mod:`.damping_tracking`) -- positive position feedback plus integral tracking;
+* ``robust`` (:mod:`.robust`) -- Glover-McFarlane H-infinity loop shaping against the stage's uncertainty set;
+* ``feedforward`` (:mod:`.feedforward`) -- model-inversion feedforward on top of a feedback design.
+
+:mod:`.protocol` turns a name, a file or ``module:function`` into a controller.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+from nanosim.design.architectures.common import DT_S, LOOP_DELAY_SAMPLES, BenchDesign
+
+__all__ = ["BENCH", "BenchDesign", "design", "design_bench", "DT_S", "LOOP_DELAY_SAMPLES"]
+
+
+def _paper(G, **kw):
+    from nanosim.design.architectures.paper import design_paper
+    return design_paper(G, **kw)
+
+
+def _hinf_damped(G, **kw):
+    from nanosim.design.architectures.hinf_damped import design_hinf_damped
+    return design_hinf_damped(G, **kw)
+
+
+def _pi_notch(G, **kw):
+    from nanosim.design.architectures.pi_notch import design_pi_notch
+    return design_pi_notch(G, **kw)
+
+
+def _damping_tracking(G, **kw):
+    from nanosim.design.architectures.damping_tracking import design_damping_tracking
+    return design_damping_tracking(G, **kw)
+
+
+def _robust(G, **kw):
+    from nanosim.design.architectures.robust import design_robust
+    return design_robust(G, **kw)
+
+
+def _feedforward(G, **kw):
+    from nanosim.design.architectures.feedforward import design_feedforward
+    return design_feedforward(G, **kw)
+
+
+# name -> design function, in scorecard order
+BENCH: dict[str, Callable[..., BenchDesign]] = {
+    "paper": _paper,
+    "hinf-damped": _hinf_damped,
+    "pi-notch": _pi_notch,
+    "damping-tracking": _damping_tracking,
+    "robust": _robust,
+    "feedforward": _feedforward,
+}
+
+
+def design(name: str, G, **kwargs) -> BenchDesign:
+    """Design the bench architecture ``name`` from the identified plant ``G``."""
+    if name not in BENCH:
+        raise ValueError(f"name: expected one of {list(BENCH)}, got {name!r}")
+    return BENCH[name](G, **kwargs)
+
+
+def design_bench(G, names=None, **kwargs) -> dict[str, BenchDesign]:
+    """Every (or the named) bench design from ``G``, in :data:`BENCH` order."""
+    names = list(BENCH) if names is None else list(names)
+    return {n: design(n, G, **kwargs) for n in names}

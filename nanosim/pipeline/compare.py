@@ -1,0 +1,279 @@
+"""``nanosim compare``: controllers through the Section 5 suite and the robustness analysis, scored.
+
+For every controller (a bench design from the identified model, a state-space file or a
+``module:function`` object, :mod:`nanosim.design.architectures.protocol`) and every seed:
+
+1. the registered experiments (``nanosim characterize``'s suite, or ``only`` of them) on the
+   MuJoCo stage or the linear twin, a fresh controller per experiment;
+2. the sensitivity of the feedback loop, measured: a PRBS added to the reading
+   (:func:`feedback_sensitivity`) -- for a two-degree-of-freedom controller the
+   reference-to-error map of the bandwidth experiment is not the loop's sensitivity;
+3. once per linear controller (seed-independent): ``robustness.json`` and its figures on
+   the identified model and on the linear twin, both with the loop's one-sample delay
+   (:func:`nanosim.pipeline.design.write_robustness`).
+
+The scorecard (:mod:`nanosim.pipeline.scorecard`) then gives mean, spread and worst case
+per metric and controller, the issue's acceptance per metric, and the default chosen by
+its rule; the overlaid figures are :mod:`nanosim.plots.compare`.
+"""
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+import identification as ident
+from nanosim import constants as C
+from nanosim import experiments
+from nanosim.design.architectures.protocol import ControllerSpec, load_controller
+from nanosim.design.lti import crossing_hz
+from nanosim.experiments.loop import FS, UM_PER_V, run_closed_loop
+from nanosim.experiments.registry import ExperimentContext
+from nanosim.fileio import save_figure, write_json, write_npz
+from nanosim.pipeline import artifacts as A
+from nanosim.pipeline.config import CompareConfig
+from nanosim.pipeline.scorecard import scorecard, write_scorecard
+
+__all__ = ["feedback_sensitivity", "FeedbackSensitivity", "run_compare", "resolve_model"]
+
+
+# =====================================================================================
+# the feedback loop's sensitivity, measured
+# =====================================================================================
+class _ReadingOffset:
+    """A stage whose readings carry ``offset_V[k]`` from its ``start``-th step on (sensor-side disturbance)."""
+
+    def __init__(self, stage, offset_V: np.ndarray, start: int):
+        self._stage = stage
+        self._d = offset_V
+        self._start = start
+        self._k = 0
+
+    def step(self, u_V):
+        y = self._stage.step(u_V)
+        j = self._k - self._start
+        self._k += 1
+        if 0 <= j < len(self._d):
+            y = y + self._d[j]
+        return y
+
+    def __getattr__(self, name):
+        return getattr(self._stage, name)
+
+
+@dataclass(frozen=True)
+class FeedbackSensitivity:
+    """``sigma_max(S_o)`` of the feedback loop measured with a PRBS added to the reading.
+
+    Attributes
+    ----------
+    freq_hz : ndarray, shape (F,)
+    sigma_S : ndarray, shape (F,)
+    bandwidth_S_hz : float
+        First -3 dB crossing of ``sigma_max(S_o)`` from below [Hz].
+    """
+
+    freq_hz: np.ndarray
+    sigma_S: np.ndarray
+    bandwidth_S_hz: float
+
+
+def feedback_sensitivity(factory, controller, seed: int = 0, duration_s: float = 4.0,
+                         amplitude_um: float = 2.0, settle_s: float = 0.6) -> FeedbackSensitivity:
+    """Output sensitivity ``S_o = (I + G Kfb)^-1`` of the loop as run, measured.
+
+    With ``r = 0`` and a disturbance ``d`` added to the reading the controller sees
+    (``y_meas = y + d``), ``y_meas = S_o d`` whatever the controller's reference path;
+    three uncorrelated PRBS of ``amplitude_um`` (the bandwidth experiment's swing), MIMO H1.
+    """
+    n = int(duration_s * FS)
+    d_um = np.stack([ident.prbs(n, 800.0, fs=FS, amplitude=amplitude_um, seed=seed * 10 + 100 + i)
+                     for i in range(3)], 1)
+    d_um = d_um - d_um.mean(axis=0)
+    n_settle = int(settle_s * FS)
+    stage = _ReadingOffset(factory(seed), d_um / UM_PER_V, start=n_settle - 1)
+    cl = run_closed_loop(stage, controller, np.zeros((n, 3)), settle_s=settle_s)
+    est = ident.h1_estimate(d_um, cl.y_um, fs=FS, nperseg=2048)
+    f = est.freq_hz
+    band = (f >= 1.0) & (f <= 1000.0)
+    sS = np.linalg.svd(est.H[band], compute_uv=False)[:, 0]
+    return FeedbackSensitivity(freq_hz=f[band], sigma_S=sS,
+                               bandwidth_S_hz=crossing_hz(f[band], sS, 1 / np.sqrt(2), rising=True))
+
+
+# =====================================================================================
+# model and controllers
+# =====================================================================================
+def resolve_model(model, out: Path, seed: int, mjcf=None, progress=None):
+    """The identified model (discrete StateSpace) and its path: ``model`` (a ``model.npz`` or a
+    folder holding one), or a fresh identification into ``out/identified``.
+    """
+    from nanosim.design.lti import load_state_space_npz
+    if model is None:
+        from nanosim.pipeline.config import IdentifyConfig
+        from nanosim.pipeline.run import step_identify
+        folder = out / "identified"
+        folder.mkdir(parents=True, exist_ok=True)
+        if progress:
+            progress(f"identifying the stage (seed {seed}) for the bench designs")
+        step_identify(folder, IdentifyConfig(seed=seed), mjcf)
+        model = folder / A.MODEL_NPZ
+    p = Path(model)
+    if p.is_dir():
+        p = p / A.MODEL_NPZ
+    G, Gd = load_state_space_npz(p)
+    if Gd is None:
+        import control as ct
+        Gd = ct.ss(ct.c2d(G, C.CONTROL_PERIOD_S, "tustin"))
+    return Gd, p
+
+
+def _robustness(spec: ControllerSpec, out: Path, Gd, twin_sysd) -> dict | None:
+    from nanosim.design.robustness import LoopPlant
+    from nanosim.pipeline.design import write_robustness
+    if not spec.is_lti:
+        return None
+    plants = {"identified": LoopPlant.identified(Gd)}
+    if twin_sysd is not None:
+        plants["twin"] = LoopPlant.twin(twin_sysd)
+    return write_robustness(out, spec.config, plants)
+
+
+def _save_controller(spec: ControllerSpec, path: Path) -> None:
+    if spec.config is None:
+        return
+    c = spec.config
+    extra = {}
+    if spec.design is not None:
+        extra["tuning_rule"] = np.array(spec.design.tuning_rule)
+    write_npz(path, Akd=c.Akd, Bkd=c.Bkd, Ckd=c.Ckd, Dkd=c.Dkd, dt=np.float64(c.dt), n_error=np.int64(c.n_error),
+              name=np.array(spec.name), **extra)
+
+
+# =====================================================================================
+# one controller on one seed
+# =====================================================================================
+def _run_suite(spec: ControllerSpec, names, factory, base, G0, seed: int, workers: int) -> dict:
+    """Results of the registered experiments ``names`` and the extra measurements, by name."""
+    def context():
+        return ExperimentContext(factory=factory, controller=spec.make(), seed=seed, static_gain_um_per_V=G0,
+                                 base_stage=base)
+
+    def task(name):
+        if name == "feedback_sensitivity":
+            return name, feedback_sensitivity(factory, spec.make(), seed=seed)
+        return name, experiments.get(name).run(context())
+
+    jobs = list(names) + ["feedback_sensitivity"]
+    order = sorted(jobs, key=lambda n: -(experiments.get(n).cost if n in names else 2))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return dict(pool.map(task, order))
+
+
+def _metrics(results: dict, names) -> dict:
+    out: dict = {}
+    for n in names:
+        out.update(experiments.get(n).metrics(results[n]))
+    fs = results["feedback_sensitivity"]
+    out["bandwidth_S_feedback_hz"] = fs.bandwidth_S_hz
+    return out
+
+
+# =====================================================================================
+# the command
+# =====================================================================================
+def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> dict:
+    """Run every controller of ``config`` on every seed; write the scorecard and the figures.
+
+    Parameters
+    ----------
+    out_dir : path
+        Run folder (normally a staging folder, :func:`nanosim.pipeline.runfolder.staged_run`).
+    config : CompareConfig
+    mjcf : path, optional
+    progress : callable, optional
+        ``progress(message)``.
+
+    Returns
+    -------
+    dict
+        The content of ``scorecard.json``.
+    """
+    from nanosim.pipeline.characterize import make_factory
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.modes import modal_analysis
+    from nanosim.plant.stage import Stage, StageConfig
+    from nanosim.plots.compare import compare_figures
+
+    say = progress or (lambda m: None)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    known = experiments.load_builtin()
+    names = list(config.only) if config.only else list(known)
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise ValueError(f"only: unknown experiment {bad[0]!r}; expected some of {list(known)}")
+    t0 = time.perf_counter()
+    needs_model = any(_is_bench(c) for c in config.controllers)
+    Gd, model_path = (resolve_model(config.model, out, config.seeds[0], mjcf, say) if needs_model or config.model
+                      else (None, None))
+    specs: list[ControllerSpec] = []
+    for c in config.controllers:
+        say(f"controller {c}: loading" + (" (designing from the identified model)" if _is_bench(c) else ""))
+        specs.append(load_controller(c, Gd))
+    labels = [s.name for s in specs]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"controllers: two controllers share a name ({labels}); rename a file")
+    factory, base = make_factory(config.twin, mjcf=mjcf)
+    G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
+    twin_sysd = linearize(Stage(config=StageConfig.ideal(), model=base.model)).sysd_V
+    workers = config.workers or min(2, os.cpu_count() or 1)
+    per: dict = {}
+    first_results: dict = {}
+    robustness: dict = {}
+    for spec in specs:
+        folder = out / spec.name
+        folder.mkdir(parents=True, exist_ok=True)
+        _save_controller(spec, folder / A.CONTROLLER_NPZ)
+        if config.robustness and spec.is_lti and Gd is not None:
+            say(f"{spec.name}: robustness analysis (identified model and twin, one-sample delay)")
+            robustness[spec.name] = _robustness(spec, folder, Gd, twin_sysd)
+        per[spec.name] = {}
+        for seed in config.seeds:
+            say(f"{spec.name}: seed {seed}, {len(names)} experiments + feedback sensitivity "
+                f"({'twin' if config.twin else 'MuJoCo'})")
+            t = time.perf_counter()
+            res = _run_suite(spec, names, factory, base, G0, seed, workers)
+            m = _metrics(res, names)
+            m["run_seconds"] = round(time.perf_counter() - t, 2)
+            write_json(folder / f"seed{seed}" / A.METRICS_JSON, m)
+            per[spec.name][seed] = m
+            if seed == config.seeds[0]:
+                first_results[spec.name] = res
+    analyses, so_bw = {}, {}
+    if Gd is not None:
+        from nanosim.design.architectures.common import sensitivity_bandwidth_hz
+        from nanosim.design.robustness import LoopPlant, loop_transfer_response, stage_grid_hz
+        plant = LoopPlant.identified(Gd)
+        for spec in specs:
+            if spec.is_lti:
+                K, Ky = spec.systems()
+                f = stage_grid_hz(plant, K, Ky, n=400)
+                analyses[spec.name] = loop_transfer_response(plant.G, K, f, Ky=Ky, delay_samples=plant.delay_samples)
+                so_bw[spec.name] = sensitivity_bandwidth_hz(analyses[spec.name])
+    for name, fig in compare_figures(first_results, analyses).items():
+        save_figure(fig, out / name)
+    doc = scorecard(specs, per, robustness, config, model_path=model_path, So_bandwidths=so_bw)
+    doc["seconds"] = round(time.perf_counter() - t0, 1)
+    write_scorecard(out, doc)
+    return doc
+
+
+def _is_bench(spec: str) -> bool:
+    from nanosim.design.architectures import BENCH
+    return spec in BENCH
+

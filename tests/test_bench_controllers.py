@@ -1,0 +1,230 @@
+"""Controller bench (#13): the six architectures, the loader of user controllers, nanosim compare, the viewer switch.
+
+Model: ``tests/data/identified_seed0.npz`` is ``model.npz`` of ``nanosim identify --seed 0`` (the
+stage as of this commit), so the designs are checked against an identified model, not the
+twin they never see. Analytic checks: the Glover-McFarlane margin of a first-order plant
+(closed form from the two scalar Riccati equations) and the polynomial inverse of a double
+real pole.
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ct = pytest.importorskip("control")
+
+from nanosim.design.architectures import BENCH, design  # noqa: E402
+from nanosim.design.architectures.common import (  # noqa: E402
+    DT_S,
+    closed_loop_spectral_radius,
+    freqresp_z,
+    loop_at_a_time_alpha,
+)
+from nanosim.design.lti import load_state_space_npz  # noqa: E402
+
+MODEL = Path(__file__).parent / "data" / "identified_seed0.npz"
+README = Path(__file__).parents[1] / "README.md"
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_state_space_npz(MODEL)[1]
+
+
+@pytest.fixture(scope="module")
+def designs(model):
+    """Every bench design from the identified model (the robust one on a shorter gain grid)."""
+    out = {}
+    for name in BENCH:
+        kw = {"gains": (2.0, 2.5)} if name == "robust" else {}
+        if name == "feedforward":
+            kw = {"base": out["pi-notch"]}
+        out[name] = design(name, model, **kw)
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# the designs
+# ----------------------------------------------------------------------------------------
+def test_every_bench_design_is_stable_with_the_identified_model(designs, model):
+    for name, d in designs.items():
+        Ke, Ky = d.split()
+        assert d.dt == DT_S and d.n_error == 3, name
+        rho = closed_loop_spectral_radius(model, Ke, Ky, delay_samples=1)
+        assert rho < 1.0, (name, rho)
+        assert d.tuning_rule and isinstance(d.parameters, dict)
+        # the exported controller itself is stable (no growing state at rest) except the slow integrators
+        assert d.config.spectral_radius < 1.0, name
+
+
+def test_pi_notch_meets_its_disk_margin_rule_and_the_rule_is_tight(designs, model):
+    from nanosim.design.architectures.pi_notch import pi_notch_controller
+    from nanosim.design.robustness import disk_margins
+    d = designs["pi-notch"]
+    p = d.parameters
+    f = np.unique(np.concatenate([np.logspace(-1, np.log10(1999.0), 1500),
+                                  *[fm * np.linspace(0.9, 1.1, 201) for fm in p["notch_hz"]]]))
+    rep = disk_margins(model, d.split()[0], f, delay_samples=1)
+    lat = [m.alpha for m in rep.input_loop_at_a_time + rep.output_loop_at_a_time]
+    assert min(lat) >= 0.5 * (1 - 2e-3), lat            # the rule, on a refined independent grid
+    G0_inv = np.linalg.inv(ct.dcgain(model))
+    K_more = pi_notch_controller(G0_inv, 1.05 * p["proportional_gain"], p["pi_zero_hz"], p["notch_hz"],
+                                 p["notch_zeta"])
+    Gf = freqresp_z(model, f)
+    assert loop_at_a_time_alpha(Gf, freqresp_z(K_more, f), 1, DT_S, f) < 0.5   # 5 % more gain breaks it
+
+
+def test_hinf_damped_uses_the_pipeline_defaults():
+    from nanosim.design.architectures import hinf_damped as h
+    from nanosim.pipeline.config import DesignConfig
+    c = DesignConfig()
+    assert (h.REDUCED_ORDER, h.DAMPING_ZETA, h.DAMPING_LOWPASS_HZ) == (c.reduced_order, c.damping_zeta,
+                                                                      c.damping_lowpass_hz)
+
+
+def test_glover_mcfarlane_margin_of_a_first_order_plant_matches_the_closed_form():
+    """g = b/(s + a): X = (sqrt(a^2+b^2) - a)/b^2, Z = sqrt(a^2+b^2) - a, gamma_min = sqrt(1 + X Z)."""
+    from nanosim.design.architectures.robust import ncf_controller
+    a, b = 2.0, 3.0
+    Kinf, gmin = ncf_controller(ct.ss([[-a]], [[b]], [[1.0]], [[0.0]]), gamma_factor=1.1)
+    r = math.hypot(a, b)
+    assert gmin == pytest.approx(math.sqrt(1 + (r - a) ** 2 / b ** 2), rel=1e-10)
+    # the controller achieves || [I; K] (I - G K)^-1 [I, G] ||_inf <= gamma (positive feedback)
+    w = np.logspace(-3, 4, 3000)
+    g = b / (1j * w + a)
+    k = np.array([complex(ct.evalfr(Kinf, 1j * x)) for x in w])
+    sens = 1 / (1 - g * k)
+    M = np.stack([np.stack([sens, sens * g], -1), np.stack([k * sens, k * sens * g], -1)], -2)
+    peak = np.linalg.svd(M, compute_uv=False)[:, 0].max()
+    assert gmin <= peak <= 1.1 * gmin * (1 + 1e-6)
+    assert np.all(np.linalg.eigvals(ct.feedback(ct.ss([[-a]], [[b]], [[1.0]], [[0.0]]), Kinf, sign=1).A).real < 0)
+
+
+def test_feedforward_inverse_recovers_a_double_real_pole():
+    """G = 1/(s/w + 1)^2 (Tustin): the inverse is 1 + 2 s/w + s^2/w^2, so P_s = 2/w, P_s2 = 1/w^2, P_s3 = 0."""
+    from nanosim.design.architectures.feedforward import fit_inverse
+    w = 2 * math.pi * 80.0
+    G = ct.ss(ct.c2d(ct.ss(ct.tf([1.0], [1 / w ** 2, 2 / w, 1.0])), DT_S, "tustin"))
+    basis = (("hp", 0.05), ("d", 1), ("d", 2), ("d", 3))
+    f = np.geomspace(5.0, 60.0, 200)
+    P = fit_inverse(G, f, basis, delay_samples=0)[:, 0, 0]
+    # Tustin warps frequencies by (2/T) tan(w T/2): 0.5 % at 60 Hz, so 2 % tolerances
+    assert P[0] == pytest.approx(1.0, rel=2e-2)
+    assert P[1] == pytest.approx(2 / w, rel=2e-2)
+    assert P[2] == pytest.approx(1 / w ** 2, rel=5e-2)
+    assert abs(P[3]) < 0.05 / w ** 3
+
+
+# ----------------------------------------------------------------------------------------
+# user controllers
+# ----------------------------------------------------------------------------------------
+def _readme_pid(tmp_path) -> Path:
+    text = README.read_text()
+    m = re.search(r"```python\n(# my_pid\.py.*?)```", text, re.S)
+    assert m, "README: the hand-written PID example (```python block starting '# my_pid.py') is missing"
+    p = tmp_path / "my_pid.py"
+    p.write_text(m.group(1))
+    return p
+
+
+def test_controller_files_load_from_npz_and_mat_and_errors_name_the_problem(tmp_path, designs):
+    from scipy.io import savemat
+
+    from nanosim.design.architectures.protocol import load_controller
+    d = designs["paper"]
+    np.savez(tmp_path / "k.npz", A=d.Akd, B=d.Bkd, C=d.Ckd, D=d.Dkd, dt=d.dt)
+    savemat(tmp_path / "k.mat", {"A": d.Akd, "B": d.Bkd, "C": d.Ckd, "D": d.Dkd, "dt": d.dt})
+    for f in ("k.npz", "k.mat"):
+        spec = load_controller(str(tmp_path / f))
+        assert spec.is_lti and spec.config.n_error == 3
+        np.testing.assert_array_equal(spec.config.Akd, d.Akd)
+    # a continuous StateSpace (dt = 0) is mapped to 4 kHz by Tustin
+    Kc = ct.ss([[-10.0]], [[1.0, 0, 0]], [[1.0], [0], [0]], np.zeros((3, 3)))
+    np.savez(tmp_path / "kc.npz", A=Kc.A, B=Kc.B, C=Kc.C, D=Kc.D, dt=0.0)
+    assert load_controller(str(tmp_path / "kc.npz")).config.dt == DT_S
+    np.savez(tmp_path / "bad.npz", A=d.Akd, B=d.Bkd, C=d.Ckd, D=d.Dkd, dt=1e-3)
+    with pytest.raises(ValueError, match=r"dt: expected the control period 0.00025 s.*got 0.001 s"):
+        load_controller(str(tmp_path / "bad.npz"))
+    with pytest.raises(ValueError, match=r"bench designs need the identified model"):
+        load_controller("pi-notch")
+    with pytest.raises(ValueError, match=r"has no function 'nope'"):
+        load_controller(f"{_readme_pid(tmp_path)}:nope")
+
+
+def test_readme_pid_and_a_bench_design_run_through_nanosim_compare(tmp_path):
+    """The README's ten-line PID (module:function) beside a bench design: twin, one seed, the bandwidth
+    experiment; scorecard.json has both controllers and every metric."""
+    from nanosim.cli import main
+    from nanosim.pipeline.scorecard import ACCEPTANCE, METRICS
+    pid = _readme_pid(tmp_path)
+    out = tmp_path / "cmp"
+    rc = main(["compare", "--controllers", f"{pid}:make", "paper", "--model", str(MODEL), "--twin",
+               "--seeds", "0", "--only", "bandwidth", "--out", str(out)])
+    assert rc == 0
+    doc = json.loads((out / "scorecard.json").read_text())
+    assert set(doc["controllers"]) == {"my_pid:make", "paper"}
+    for name, c in doc["controllers"].items():
+        assert set(c["summary"]) == {m.key for m in METRICS}, name
+        assert set(c["acceptance"]) == set(ACCEPTANCE), name
+    pid_m = doc["controllers"]["my_pid:make"]["summary"]
+    paper = doc["controllers"]["paper"]["summary"]
+    # the PID ran: a finite measured bandwidth (a slow one: no notches keep its gain below the 176 Hz mode)
+    assert 0.1 < pid_m["bandwidth_T_hz"]["mean"] < paper["bandwidth_T_hz"]["mean"]
+    # both S measurements agree for the paper's one-degree-of-freedom loop (r -> e is the loop's S)
+    assert paper["bandwidth_S_feedback_hz"]["mean"] == pytest.approx(paper["bandwidth_S_hz"]["mean"], rel=0.15)
+    assert doc["controllers"]["my_pid:make"]["robustness"]["mu_peak"] is None          # an object: no matrices
+    assert doc["controllers"]["paper"]["robustness"]["multiloop_disk_margin"] > 0.4
+    assert doc["default"] == "paper"                                    # the only bench design
+    for f in ("scorecard.md", "scorecard.html", "compare_loops.png", "compare_step.png"):
+        assert (out / f).stat().st_size > 500, f
+
+
+# ----------------------------------------------------------------------------------------
+# viewer: switching controllers without a kick
+# ----------------------------------------------------------------------------------------
+def test_bumpless_switch_keeps_the_command(designs, model):
+    from nanosim.viewer.bench import bumpless_state
+    for name in ("hinf-damped", "pi-notch", "feedforward"):
+        ctrl = designs[name].controller()
+        y = np.array([0.3, -0.2, -5.0])                     # a reading away from zero (Z probe offset)
+        u = np.array([0.4, -0.1, 0.25])                     # the command the previous controller applied
+        x = bumpless_state(ctrl, y, u)
+        ctrl.reset(x)
+        u0 = ctrl.step(np.zeros(3), y) if ctrl.two_dof else ctrl.step(np.zeros(3))
+        np.testing.assert_allclose(u0, u, atol=1e-9, err_msg=name)
+        # and it stays near: the slow states carry the command, 10 ms later it has moved < 2 %
+        for _ in range(40):
+            u1 = ctrl.step(np.zeros(3), y) if ctrl.two_dof else ctrl.step(np.zeros(3))
+        assert np.abs(u1 - u).max() < 0.02 * np.abs(u).max(), name
+
+
+def test_viewer_switches_bench_controllers_live_without_a_kick(designs, model):
+    """LiveSim (linearized MuJoCo, ideal electronics) holding X at 1 um under one controller, then switched:
+    the command moves by far less than with a plain restart of the new controller."""
+    from nanosim.viewer.bench import switch_controller
+    from nanosim.viewer.sim import LiveSim
+    sim = LiveSim(controller=designs["pi-notch"].controller(), physics="linear")
+    ref = np.array([1.0, 0.0, 0.0])
+    for _ in range(1200):                                   # 0.3 s: settled at 1 um
+        sim.step(ref)
+    u_before = sim.u_V.copy()
+    jumps = {}
+    for how in ("bumpless", "reset_at"):
+        s2 = LiveSim(controller=designs["pi-notch"].controller(), physics="linear")
+        for _ in range(1200):
+            s2.step(ref)
+        new = designs["robust"].controller()
+        if how == "bumpless":
+            switch_controller(s2, new)
+        else:
+            s2.controller = new
+            new.reset_at(s2.y_V)
+        y = [s2.step(ref)[0] for _ in range(200)]
+        jumps[how] = (np.abs(s2.u_V - u_before).max(), np.abs(np.array(y) - 1.0).max())
+    assert jumps["bumpless"][1] < 0.05                       # stays within 50 nm of 1 um
+    assert jumps["bumpless"][1] < 0.2 * jumps["reset_at"][1]
