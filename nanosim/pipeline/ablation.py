@@ -75,6 +75,7 @@ class AblationRow:
     change: str
     config: StageConfig
     identify_ideal: bool = False          # identification quality: identify the noise-free linear stage
+    model_freq_scale: float = 1.0         # identification quality: the design model's poles scaled (A, B x s)
 
 
 def ablation_rows() -> list[AblationRow]:
@@ -108,6 +109,10 @@ def ablation_rows() -> list[AblationRow]:
                     replace(v2, piezo=PiezoConfig.calibrated_v1())),
         AblationRow("ideal identification", "controller designed on the noise-free linear stage's model", v2,
                     identify_ideal=True),
+        AblationRow("model modes +1 %", "design model's poles 1 % high (A and B x 1.01, DC gain kept)", v2,
+                    model_freq_scale=1.01),
+        AblationRow("model modes -1 %", "design model's poles 1 % low (A and B x 0.99, DC gain kept)", v2,
+                    model_freq_scale=0.99),
         AblationRow("v1 stage", "v1 electronics, v1 creep, no floor (stage before issue 12)", StageConfig.v1()),
     ]
     return rows
@@ -151,6 +156,15 @@ def _design(plant: _Plant, row: AblationRow, seed: int, work: Path) -> Path:
     res = identify_stage(IdentifySettings(seed=seed, ideal=row.identify_ideal), model=plant.model, config=cfg,
                          runner=plant.runner())
     npz = save_model(work / "model.npz", res)
+    if row.model_freq_scale != 1.0:
+        # every pole x s, same DC gain: G_s(s) = C (s I - s A)^-1 s B + D = G(s / s_)
+        import control as ct
+        sc = res.sysc
+        k = row.model_freq_scale
+        sys_c = ct.ss(np.asarray(sc.A) * k, np.asarray(sc.B) * k, sc.C, sc.D)
+        sys_d = ct.c2d(sys_c, res.sysd.dt, "tustin")
+        write_npz(npz, A=sys_c.A, B=sys_c.B, C=sys_c.C, D=sys_c.D, Ad=sys_d.A, Bd=sys_d.B, Cd=sys_d.C, Dd=sys_d.D,
+                  dt=res.sysd.dt)
     tw = linearize(plant.base).sys_V
     twin_npz = write_npz(work / "twin.npz", A=tw.A, B=tw.B, C=tw.C, D=tw.D)
     run_design(npz, work, DesignConfig.paper(), twin=str(twin_npz))
