@@ -32,7 +32,10 @@ def load_bench(folder) -> dict[str, DiscreteController]:
     if not p.is_dir():
         raise FileNotFoundError(f"--bench: expected a nanosim compare run folder, got {str(p)!r}")
     out = {}
-    for f in sorted(p.glob("*/controller.npz")):
+    files = sorted(p.glob("*/controller.npz"))
+    order = _scorecard_order(p)
+    files.sort(key=lambda f: (order.index(f.parent.name) if f.parent.name in order else len(order), f.parent.name))
+    for f in files:
         out[f.parent.name] = DiscreteController.from_npz(f)
     if not out:
         raise FileNotFoundError(f"--bench: no <name>/controller.npz in {str(p)!r} (run nanosim compare first)")
@@ -115,13 +118,21 @@ def bench_setup(bench, controller):
     return dict(bench), controller
 
 
-def _scorecard_default(folder: Path):
+def _scorecard(folder: Path) -> dict:
     import json
     p = folder / "scorecard.json"
     try:
-        return json.loads(p.read_text()).get("default") if p.is_file() else None
+        return json.loads(p.read_text()) if p.is_file() else {}
     except (OSError, ValueError):
-        return None
+        return {}
+
+
+def _scorecard_default(folder: Path):
+    return _scorecard(folder).get("default")
+
+
+def _scorecard_order(folder: Path) -> list:
+    return list(_scorecard(folder).get("controllers", {}))
 
 
 def apply_bench_choice(sim, bench: dict, name: str) -> None:
