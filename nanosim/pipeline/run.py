@@ -7,9 +7,10 @@ a run folder is complete or untouched.
 from __future__ import annotations
 
 import multiprocessing
+import signal
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -82,6 +83,11 @@ def step_report(out: Path) -> None:
 PIPELINE_STEPS = ("modes", "identify", "design", "characterize", "characterize_twin", "report")
 
 
+def _ignore_sigint() -> None:
+    """Pool initializer: Ctrl-C goes to the main process, which stops the worker (no traceback from it)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _characterize_twin(out: str, seed: int, mjcf) -> float:
     """The twin's experiments (run in a worker process); returns their wall time [s]."""
     from nanosim.pipeline.characterize import run_characterize
@@ -134,19 +140,24 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
         timed("identify")
         modes.result()
     timed("design")
-    twin = None
+    twin = pool = None
     if "characterize_twin" in names:
-        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-        twin = pool.submit(_characterize_twin, str(out), cfg.seed, None if cfg.mjcf is None else str(cfg.mjcf))
+        pool = multiprocessing.get_context("spawn").Pool(1, initializer=_ignore_sigint)
+        twin = pool.apply_async(_characterize_twin, (str(out), cfg.seed, None if cfg.mjcf is None else str(cfg.mjcf)))
     try:
         timed("characterize")
         if twin is not None:
-            timings["characterize_twin"] = twin.result()
+            timings["characterize_twin"] = twin.get()
             if bar:
                 bar.update(1)
-    finally:
-        if twin is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+    except BaseException:
+        if pool is not None:     # Ctrl-C or a failed step: stop the twin's experiments now, do not wait for them
+            pool.terminate()
+            pool.join()
+        raise
+    if pool is not None:
+        pool.close()
+        pool.join()
     timings["overlapped_wall"] = round(time.perf_counter() - t_start, 2)
     write_json(out / A.PIPELINE_JSON, {"stage_seconds": timings, "seed": cfg.seed})   # the report reads it
     timed("report")
