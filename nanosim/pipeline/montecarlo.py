@@ -360,8 +360,12 @@ def report_markdown(summary: dict) -> str:
             big = max(c["metrics"].items(), key=lambda kv: kv[1]["rel_diff"]) if c["metrics"] else ("", {})
             lines.append(f"| #{c['sample']} | {sum(r['ok'] for r in c['metrics'].values())}/{len(c['metrics'])} | "
                          f"`{big[0]}` {100 * big[1].get('rel_diff', math.nan):.2f} % |")
-    lines += ["", "## Figures", "", f"![histograms]({FIG_HIST})", "", f"![sensitivity]({FIG_SENS})", "",
-              f"![cross-check]({FIG_CROSS})", ""]
+    lines += ["", "## Figures", ""]
+    for name, fig, present in (("histograms", FIG_HIST, summary["n"] > 0), ("sensitivity", FIG_SENS,
+                                                                             bool(summary["sensitivity"])),
+                               ("cross-check", FIG_CROSS, bool(summary["crosscheck"]))):
+        if present:
+            lines += [f"![{name}]({fig})", ""]
     if summary["errors"]:
         lines += ["## Errors", ""] + [f"- sample {i}: {e}" for i, e in summary["errors"].items()]
     return "\n".join(lines) + "\n"
