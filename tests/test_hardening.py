@@ -521,9 +521,11 @@ def test_wheel_installs_and_runs_in_a_fresh_venv(tmp_path):
     names = zipfile.ZipFile(whl).namelist()
     assert "nanosim/mjcf/scene.xml" in names and "nanosim/mjcf/pkxyz_stage.xml" in names
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True, timeout=300)
+    # a fresh venv that sees the installed dependencies (mujoco, ...); this pip installs into it (no ensurepip)
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", str(venv)], check=True,
+                   timeout=300)
     py = venv / "bin" / "python"
-    p = subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-index", "--no-build-isolation", str(whl)],
+    p = subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-index", str(whl)],
                        capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr
     cwd = tmp_path / "elsewhere"
