@@ -20,7 +20,7 @@ import pytest
 control = pytest.importorskip("control")
 pytest.importorskip("slycot")
 
-from nanosim import constants  # noqa: E402
+from nanosim import constants, paper  # noqa: E402
 import nanosim.design as D  # noqa: E402
 from nanosim.design.weights import PAPER_WEIGHTS, Weights, WeightSpec  # noqa: E402
 
@@ -311,7 +311,7 @@ def test_uncertainty_paper_like(paper_case):
 # --------------------------------------------------------------------------------------
 def test_paper_like_design(paper_case, record_property):
     G, red, d = paper_case
-    assert d.controller_order == red.order + 9 == 19 == constants.PAPER_CONTROLLER_ORDER
+    assert d.controller_order == red.order + 9 == 19 == paper.PAPER_CONTROLLER_ORDER
     assert d.stable_nominal and d.stable_full and d.stable_twin
     assert 1.0 <= d.gamma < 2.0
     assert d.gamma_grid == pytest.approx(d.gamma, rel=5e-3)
