@@ -6,6 +6,7 @@ a run folder is complete or untouched.
 """
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import signal
 import sys
@@ -154,6 +155,8 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
         if pool is not None:     # Ctrl-C or a failed step: stop the twin's experiments now, do not wait for them
             pool.terminate()
             pool.join()
+            pool = twin = None   # release its semaphores now (the CLI may leave through os._exit)
+            gc.collect()
         raise
     if pool is not None:
         pool.close()
