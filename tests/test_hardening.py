@@ -34,9 +34,13 @@ def nanosim(*args, cwd=None, timeout=120, umask=None):
                           timeout=timeout, env=ENV, cwd=cwd, umask=-1 if umask is None else umask)
 
 
+def _default_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_DFL)     # a shell's background job would pass SIGINT on ignored
+
+
 def start(*args, cwd=None):
     return subprocess.Popen([sys.executable, "-m", "nanosim.cli", *map(str, args)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=ENV, cwd=cwd)
+                            stderr=subprocess.PIPE, text=True, env=ENV, cwd=cwd, preexec_fn=_default_sigint)
 
 
 def wait_for(condition, proc, timeout=120.0):
