@@ -33,7 +33,7 @@ from nanosim import constants as C
 from nanosim.plant.batch_electronics import BatchElectronics, BatchReading
 from nanosim.plant.floor import FloorConfig, floor_model
 from nanosim.plant.mechanics import home_data
-from nanosim.plant.mjcf import custom_numeric, probe_layout
+from nanosim.plant.mjcf import custom_numeric, probe_layout, update_position_sensors
 from nanosim.plant.noise import NormalStream, child_seed
 from nanosim.plant.stage import StageConfig, Trace
 from nanosim.validation import as_finite_array
@@ -294,6 +294,7 @@ def _step_members(models, datas, forces, substeps, adrs, biases, out, idx) -> No
         d = datas[i]
         d.ctrl[:] = forces[i]
         mujoco.mj_step(models[i], d, substeps)
+        update_position_sensors(models[i], d)          # the reading at the end of the period, as Stage.step
         out[i] = (d.sensordata[adrs[i]] + biases[i]) * 1e6
 
 

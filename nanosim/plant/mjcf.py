@@ -149,6 +149,16 @@ def probe_layout(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
     return adr, bias
 
 
+def update_position_sensors(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+    """Recompute position-stage sensors (the probes) for ``data``'s current ``qpos``.
+
+    ``mj_step`` evaluates sensors before it integrates, so after a step ``sensordata`` describes
+    the state one substep earlier; this brings the probes to the end of the step (~3 us).
+    """
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_sensorPos(model, data)
+
+
 def probe_readings_um(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
     """Noise-free probe readings (um) of ``data``'s current sensordata."""
     adr, bias = probe_layout(model)

@@ -20,7 +20,7 @@ from nanosim.validation import as_finite_array
 from nanosim.plant.electronics import ActuatorChain, ElectronicsConfig, SensorChain
 from nanosim.plant.floor import FloorConfig, FloorVibration, floor_model
 from nanosim.plant.mechanics import home_data
-from nanosim.plant.mjcf import custom_numeric, load_model, probe_layout
+from nanosim.plant.mjcf import custom_numeric, load_model, probe_layout, update_position_sensors
 from nanosim.plant.piezo import PiezoConfig
 
 
@@ -142,6 +142,7 @@ class Stage:
         act = self.actuators.step(u)
         self.data.ctrl[:] = self._force_per_V * act.v_free_V
         mujoco.mj_step(self.model, self.data, self.substeps)
+        update_position_sensors(self.model, self.data)   # the reading at the end of the period
         self.time_s += self.dt_s
         self.table_um = self._probe_um()
         if self.floor.active:
@@ -185,12 +186,19 @@ def _rollout(model, datas, start: mujoco.MjData, forces: np.ndarray, substeps: i
     mujoco.mj_getState(model, start, state0, spec)
     states = np.tile(state0, (nb, 1))
     out = np.empty((nb, n, 3))
+    scratch = mujoco.MjData(model)
     for k0 in range(0, n, _CHUNK):
         k1 = min(n, k0 + _CHUNK)
         ctrl = np.repeat(forces[:, k0:k1], substeps, axis=1)
         st, sd = rollout.rollout(model, datas, states, ctrl, skip_checks=False)
-        out[:, k0:k1] = (sd[:, substeps - 1::substeps, :][:, :, probe_adr] + bias_m) * 1e6
+        # mj_step records sensors before it integrates: the reading at the end of period p is the
+        # one recorded by the first substep of period p + 1; the chunk's last comes from its final state
+        out[:, k0:k1 - 1] = (sd[:, substeps::substeps, :][:, :, probe_adr] + bias_m) * 1e6
         states = st[:, -1, :].copy()
+        for b in range(nb):
+            mujoco.mj_setState(model, scratch, states[b], spec)
+            update_position_sensors(model, scratch)
+            out[b, k1 - 1] = (scratch.sensordata[probe_adr] + bias_m) * 1e6
     if nb:
         mujoco.mj_setState(model, start, states[0], spec)
         mujoco.mj_forward(model, start)
