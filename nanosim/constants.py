@@ -68,10 +68,11 @@ AMPLIFIER_NOISE_V = 14.5e-6
 # DAC electrical noise, the standard electronic-noise spectrum e_n^2 (1 + f_c / f): the paper says
 # most of its noise came from the DAC and that this "high frequency noise will vibrate the stage"
 # (Sec. 5). The level is the ONE noise level fitted to the paper: the open-loop probe sigma at rest,
-# 11.4 nm (tests/test_stage.py), with every other source at its sourced level. Controller V per
+# 11.4 nm, as the mean variance over seeds 0-4 and the X and Y probes (tools/fit_dac_noise.py;
+# tests/test_stage.py), with every other source at its sourced level. Controller V per
 # sample, white part (a datasheet-level 16-18 bit DAC alone gives ~10-50 uV; the fitted level is
-# about 9x that, i.e. interference, reference and ground noise, as the paper suspected).
-DAC_WHITE_NOISE_V = 2.7e-4
+# about 8x that, i.e. interference, reference and ground noise, as the paper suspected).
+DAC_WHITE_NOISE_V = 2.43e-4
 # 1/f corner of that noise: typical of precision op-amp/reference output stages (1-100 Hz); 10 Hz.
 DAC_FLICKER_CORNER_HZ = 10.0
 # Capacitive gauge (ADE 2805 probe + 4810 module) output filter: not in the paper; gauging

@@ -102,9 +102,10 @@ def test_creep_after_step_and_all_actuators_creep_mostly_in_z():
 
 
 def test_open_loop_noise_at_rest_matches_paper():
-    tr = Stage(seed=11).run(np.zeros((18000, 3)))          # 4 s after 0.5 s: low-frequency noise
-    sigma_nm = tr.sensor_um[2000:].std(axis=0) * 1e3
-    assert_allclose(sigma_nm[:2], PAPER_SIGMA_OPEN_NM, rtol=0.2)
+    """The one fitted noise level (DAC): rms over seeds 0-4 and X, Y of 4 s at rest is the paper's 11.4 nm."""
+    var = [(Stage(seed=s).run(np.zeros((18000, 3))).sensor_um[2000:, :2] * 1e3).var(axis=0) for s in range(5)]
+    assert_allclose(np.sqrt(np.mean(var)), PAPER_SIGMA_OPEN_NM, rtol=0.01)   # fit rounded to 3 digits
+    assert np.sqrt(np.min(var)) > 0.8 * PAPER_SIGMA_OPEN_NM and np.sqrt(np.max(var)) < 1.2 * PAPER_SIGMA_OPEN_NM
 
 
 def test_adc_ramp_shows_1p5nm_steps():
