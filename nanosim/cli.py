@@ -195,6 +195,31 @@ def _cmd_report(args) -> int:
     return 0
 
 
+def _cmd_ablation(args) -> int:
+    import tempfile
+
+    from nanosim.fileio import write_json, write_text
+    from nanosim.pipeline.ablation import ablation_rows, markdown_table, run_ablation
+    from nanosim.pipeline.predictions import ABLATION_JSON
+    from nanosim.pipeline.report import write_report
+    from nanosim.pipeline.runfolder import sealed_run, staged_run
+
+    names = [r.name for r in ablation_rows()]
+    unknown = [r for r in args.rows or () if r not in names]
+    if unknown:
+        raise ValueError(f"--rows: expected names among {names}, got {unknown}")
+    run = sealed_run(args.run)                  # refuse a folder whose files do not match its manifest
+    seed = 0 if run.seed is None else int(run.seed)
+    with staged_run(args.run, keep_existing=True, seed=seed) as stage, tempfile.TemporaryDirectory() as work:
+        res = run_ablation(work, seed=seed, twin=not args.mujoco, redesign=not args.fixed_controller,
+                           rows=args.rows, mjcf=args.mjcf, log=lambda *a, **k: None, progress=True)
+        write_json(stage / ABLATION_JSON, res)
+        write_text(stage / "ablation.md", markdown_table(res))
+        write_report(stage)
+    print(f"ablation of {len(res['rows'])} rows (seed {seed}); report: {Path(args.run) / A.REPORT_HTML}")
+    return 0
+
+
 def _cmd_montecarlo(args) -> int:
     from nanosim.design.controller import DiscreteController
     from nanosim.pipeline.config import MonteCarloConfig
@@ -326,6 +351,16 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("report", help="verify a run folder against its manifest and rewrite its report")
     r.add_argument("--run", required=True, metavar="DIR", help="run folder written by nanosim (with manifest.json)")
     r.set_defaults(func=_cmd_report)
+    ab = sub.add_parser("ablation", help="the paper's controller with each stage-model element switched off or "
+                                         "changed (issue 12): adds ablation.json and its table to a run's report")
+    ab.add_argument("--run", required=True, metavar="DIR", help="run folder written by nanosim (its seed is used)")
+    ab.add_argument("--rows", nargs="+", default=None, metavar="ROW",
+                    help="names of the rows to run (default all; an unknown name lists them)")
+    ab.add_argument("--mujoco", action="store_true", help="MuJoCo mechanics instead of the linear twin (slow)")
+    ab.add_argument("--fixed-controller", action="store_true",
+                    help="keep the controller designed on the all-on stage instead of redesigning per row")
+    ab.add_argument("--mjcf", default=None, type=_file)
+    ab.set_defaults(func=_cmd_ablation)
     mc = sub.add_parser("montecarlo", help="one controller on a population of fabricated stages (tolerances)")
     mc.add_argument("--n", type=_int_at_least(1), default=200, help="number of fabricated stages (default 200)")
     mc.add_argument("--controller", required=True, type=_file, help="controller.npz from 'nanosim design'")

@@ -60,8 +60,8 @@ from nanosim.plant.piezo import PiezoConfig
 from nanosim.plant.stage import Stage, StageConfig, Trace
 from nanosim.plant.twin import TwinStage
 
-__all__ = ["AblationRow", "ablation_rows", "PAPER_TARGETS", "run_row", "run_ablation", "ring_mechanism",
-           "markdown_table"]
+__all__ = ["AblationRow", "AblationPlant", "ablation_rows", "PAPER_TARGETS", "run_row", "run_ablation",
+           "ring_mechanism", "markdown_table"]
 
 # Paper Sec. 5 (nanosim.paper holds them too; repeated here as the table's header).
 PAPER_TARGETS = {"settling_ms": 11.0, "sigma_closed_nm": 1.89, "contour_mean_nm_1000": 40.0, "bandwidth_S_hz": 32.0}
@@ -118,8 +118,11 @@ def ablation_rows() -> list[AblationRow]:
     return rows
 
 
-class _Plant:
-    """Mechanics shared by every row: the MuJoCo model, its twin and floor model."""
+class AblationPlant:
+    """Mechanics shared by every row: the MuJoCo model, its twin and floor model.
+
+    ``twin=True``: rows run on the linear twin (MuJoCo's linearization) with the row's electromechanics.
+    """
 
     def __init__(self, twin: bool, mjcf=None):
         self.base = Stage(config=StageConfig.ideal(), mjcf=mjcf)
@@ -130,6 +133,7 @@ class _Plant:
         self.fm = floor_model(self.model, self.base.dt_s)
 
     def factory(self, config: StageConfig):
+        """``seed -> stage`` with this row's electromechanics on the shared mechanics."""
         if self.twin:
             return lambda seed: TwinStage(self.lin, seed=seed, config=config, home_um=self.home, floor_model=self.fm)
         return lambda seed: Stage(seed=seed, config=config, model=self.model)
@@ -151,7 +155,7 @@ class _Plant:
         return run
 
 
-def _design(plant: _Plant, row: AblationRow, seed: int, work: Path) -> Path:
+def _design(plant: AblationPlant, row: AblationRow, seed: int, work: Path) -> Path:
     cfg = StageConfig.ideal() if row.identify_ideal else row.config
     res = identify_stage(IdentifySettings(seed=seed, ideal=row.identify_ideal), model=plant.model, config=cfg,
                          runner=plant.runner())
@@ -177,7 +181,7 @@ def _design(plant: _Plant, row: AblationRow, seed: int, work: Path) -> Path:
     return work / "controller.npz"
 
 
-def run_row(plant: _Plant, row: AblationRow, controller_npz, seed: int = 0) -> dict:
+def run_row(plant: AblationPlant, row: AblationRow, controller_npz, seed: int = 0) -> dict:
     """Closed-loop figures of one row with one controller (the paper's Sec. 5 quantities)."""
     ctrl = DiscreteController.from_npz(controller_npz, expected_dt=C.CONTROL_PERIOD_S)
     fac = plant.factory(row.config)
@@ -192,9 +196,12 @@ def run_row(plant: _Plant, row: AblationRow, controller_npz, seed: int = 0) -> d
 
 
 def run_ablation(out_dir, *, seed: int = 0, twin: bool = True, redesign: bool = True, rows=None,
-                 mjcf=None, log=print) -> dict:
-    """Run the rows (all by default); returns the table as a dict (also the JSON's content)."""
-    plant = _Plant(twin, mjcf)
+                 mjcf=None, log=print, progress: bool = False) -> dict:
+    """Run the rows (all by default); returns the table as a dict (also the JSON's content).
+
+    ``progress``: a bar on stderr naming the running row, with an ETA.
+    """
+    plant = AblationPlant(twin, mjcf)
     all_rows = ablation_rows()
     chosen = [r for r in all_rows if rows is None or r.name in rows]
     unknown = set(rows or ()) - {r.name for r in all_rows}
@@ -204,11 +211,19 @@ def run_ablation(out_dir, *, seed: int = 0, twin: bool = True, redesign: bool = 
     out.mkdir(parents=True, exist_ok=True)
     result = {"seed": seed, "mechanics": "twin" if twin else "mujoco", "redesign": redesign,
               "targets": PAPER_TARGETS, "rows": []}
+    bar = None
+    if progress:
+        import sys
+
+        from tqdm import tqdm
+        bar = tqdm(total=len(chosen), desc="ablation", unit="row", file=sys.stderr)
     with tempfile.TemporaryDirectory() as tmp:
         base_ctrl = None
         if not redesign:
             base_ctrl = _design(plant, all_rows[0], seed, Path(tmp) / "v2")
         for row in chosen:
+            if bar is not None:
+                bar.set_postfix_str(f"running {row.name}")
             t0 = time.perf_counter()
             work = Path(tmp) / row.name.replace(" ", "_")
             work.mkdir(parents=True, exist_ok=True)
@@ -223,9 +238,13 @@ def run_ablation(out_dir, *, seed: int = 0, twin: bool = True, redesign: bool = 
             m.update(name=row.name, change=row.change, seconds=round(time.perf_counter() - t0, 1))
             result["rows"].append(m)
             (out / "ablation.partial.json").write_text(json.dumps(result, indent=1))
+            if bar is not None:
+                bar.update(1)
             log(f"{row.name:22s} settle {m['settling_ms']:7.1f} ms  sigma {m['sigma_closed_nm']:5.2f} nm "
                 f"(table {m['sigma_closed_table_nm']:5.2f})  contour {m['contour_mean_nm_1000']:6.1f} nm  "
                 f"S-BW {m['bandwidth_S_hz']:5.1f} Hz  ({m['seconds']} s) {m.get('error', '')}", flush=True)
+    if bar is not None:
+        bar.close()
     return result
 
 
@@ -235,7 +254,7 @@ def ring_mechanism(controller_npz, *, seed: int = 1, twin: bool = True, mjcf=Non
     Returns rows ``{case, settling_ms, overshoot_percent, rms_after_20ms_nm}``.
     """
     from nanosim.experiments.loop import FS, run_closed_loop, step_metrics
-    plant = _Plant(twin, mjcf)
+    plant = AblationPlant(twin, mjcf)
     quiet = replace(StageConfig.ideal(), electronics=ElectronicsConfig.ideal(
         computation_delay_samples=StageConfig().electronics.computation_delay_samples))
     p = StageConfig().piezo
