@@ -53,8 +53,13 @@ def label_positions(model, data, view_dir=VIEW_DIR) -> dict[str, np.ndarray]:
     for ax in "xyz":
         p = data.geom_xpos[model.geom(f"probe_{ax}").id] * sc.MM
         away = p - table
+        if ax != "z":
+            away[2] = 0.0                         # sideways: the cube sits high above the table centre
         away /= max(np.linalg.norm(away), 1e-9)
         out[f"probe_{ax}"] = p + 0.08 * ext * away + np.array([0.0, 0.0, 0.03 * ext])
+    # seen from the first camera (between +X and -Y) the X and Y probes point to the same side of the
+    # screen: the Y label goes a line and a half higher
+    out["probe_y"] = out["probe_y"] + np.array([0.0, 0.0, 0.07 * ext])
     others = label_boxes(out, texts, view_dir)
     cands = sorted(((r, h, th) for r in (0.12, 0.2, 0.3) for h in (-0.08, 0.12, -0.16)
                     for th in np.linspace(0.0, 2 * np.pi, 16, endpoint=False)), key=lambda c: np.hypot(c[0], c[1]))
