@@ -7,6 +7,10 @@ steps them with one batched matrix product. :func:`run_closed_loop_batch` is
 stage (:mod:`nanosim.plant.batch`), with the same settle ramp, the same
 equilibrium reset of a two-degree-of-freedom controller and the same record.
 
+On a :class:`~nanosim.plant.batch.BatchTwinStage` the loop runs compiled
+(:mod:`nanosim.plant.batch_kernel`, numba) with the same operations and products
+(``tests/test_batch_kernel.py``); ``compiled=False`` keeps the numpy loop.
+
 Every member gives bit for bit the single-stage numbers (``tests/test_batch.py``):
 the controller product is a stacked ``matmul``, one BLAS ``gemv`` per member,
 the single controller's own call. A member padded to a larger order (members
@@ -19,6 +23,7 @@ import numpy as np
 
 from nanosim.design.controller import ControllerConfig, DiscreteController
 from nanosim.experiments.loop import FS, UM_PER_V, LoopTrace
+from nanosim.plant import batch_kernel
 from nanosim.ramps import raised_cosine
 
 __all__ = ["BatchController", "run_closed_loop_batch"]
@@ -117,6 +122,17 @@ class BatchController:
             self._xe[b, :ns, 0] = x0
             self._xe[b, ns:, 0] = 0.0
 
+    def kernel_arrays(self) -> tuple:
+        """The bank for :func:`nanosim.plant.batch_kernel.twin_closed_loop`: ``(mode, matrix, xe, n_states,
+        n_error, two_dof)``; ``xe`` ``(B, n_states + n_in)`` is a view of the state (updated in place).
+        """
+        xe = self._xe.reshape(self.n, -1)
+        if self._MT is not None:
+            return 0, self._MT[None], xe, self.n_states, self.n_error, self.two_dof
+        if self._M.ndim == 2:
+            return 1, np.ascontiguousarray(self._M[None]), xe, self.n_states, self.n_error, self.two_dof
+        return 2, np.ascontiguousarray(self._M), xe, self.n_states, self.n_error, self.two_dof
+
     def feedback(self, reference_V: np.ndarray, measurement_V: np.ndarray) -> np.ndarray:
         """One sample of every loop: ``e = r - y`` (and ``y``) -> commands ``(B, n_out)``.
 
@@ -136,7 +152,7 @@ class BatchController:
 
 
 def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle: bool = True,
-                          settle_s: float = 0.6) -> list[LoopTrace]:
+                          settle_s: float = 0.6, compiled: bool = True) -> list[LoopTrace]:
     """:func:`~nanosim.experiments.loop.run_closed_loop` on every member of a batch stage.
 
     Parameters
@@ -148,6 +164,10 @@ def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle:
         Reference of every member (um from the probe origin).
     settle, settle_s
         As in :func:`~nanosim.experiments.loop.run_closed_loop`.
+    compiled : bool
+        True (default): a :class:`~nanosim.plant.batch.BatchTwinStage` runs in the compiled loop
+        (:mod:`nanosim.plant.batch_kernel`, numba) when numba is installed; equal to the numpy path to
+        1e-12 (matrix products summed in another order). False: the numpy path.
 
     Returns
     -------
@@ -163,16 +183,27 @@ def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle:
     if ref.ndim != 3 or ref.shape[0] != nb or ref.shape[2] != 3:
         raise ValueError(f"ref_um: expected shape (N, 3) or ({nb}, N, 3), got {ref.shape}")
     y = stage.read().reading_V
+    fast = compiled and batch_kernel.supported(stage) and controller.n_out == 3
     if settle:
         if controller.two_dof:
             controller.reset_at(y)
         n = int(settle_s * FS)
         start = y * UM_PER_V
         w = raised_cosine(n, 0.6)
-        for k in range(n):
-            r = start + w[k] * (ref[:, 0] - start)
-            y = stage.step(controller.feedback(r / UM_PER_V, y))
+        if fast:
+            r = start[None] + w[:, None, None] * (ref[:, 0] - start)[None]    # the loop's r, row by row
+            y, _ = batch_kernel.twin_closed_loop(stage, controller.kernel_arrays(),
+                                                 r[:, :, :controller.n_error] / UM_PER_V, y, False)
+        else:
+            for k in range(n):
+                r = start + w[k] * (ref[:, 0] - start)
+                y = stage.step(controller.feedback(r / UM_PER_V, y))
     n = ref.shape[1]
+    if fast:
+        rv = np.ascontiguousarray(np.swapaxes(ref, 0, 1)) / UM_PER_V
+        _, (yv, tb, us, sat) = batch_kernel.twin_closed_loop(stage, controller.kernel_arrays(),
+                                                             rv[:, :, :controller.n_error], y, True)
+        return _traces(ref, yv, tb, us, sat)
     yv, tb, us = (np.empty((n, nb, 3)) for _ in range(3))
     sat = np.empty((n, nb, 3), dtype=bool)
     rv = np.ascontiguousarray(np.swapaxes(ref, 0, 1)) / UM_PER_V      # (N, B, 3): rv[k] contiguous
@@ -183,6 +214,11 @@ def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle:
         us[k] = u
         y = stage.step(u)
         sat[k] = stage.last_saturated
+    return _traces(ref, yv, tb, us, sat)
+
+
+def _traces(ref, yv, tb, us, sat) -> list[LoopTrace]:
+    n, nb = yv.shape[:2]
     ys = yv * UM_PER_V                        # the same product per element as the single loop's y * UM_PER_V
     t = np.arange(n) / FS
     return [LoopTrace(t_s=t, ref_um=np.array(ref[b]), y_um=ys[:, b].copy(), table_um=tb[:, b].copy(),

@@ -30,6 +30,7 @@ import mujoco
 import numpy as np
 
 from nanosim import constants as C
+from nanosim.plant import batch_kernel
 from nanosim.plant.batch_electronics import BatchElectronics, BatchReading
 from nanosim.plant.floor import FloorConfig, floor_model
 from nanosim.plant.mechanics import home_data
@@ -84,12 +85,28 @@ class _BatchFloor:
         self._buf = np.empty((0, len(self._seeds), 3, 1))
         self._i = 0
 
+    def take_accel(self, n: int) -> np.ndarray:
+        """The base accelerations of the next ``n`` periods, ``(n, B, 3)`` (as ``n`` :meth:`step` calls draw them)."""
+        out = np.empty((n, len(self._seeds), 3))
+        filled = 0
+        while filled < n:
+            if self._i == len(self._buf):
+                self._refill()
+            k = min(n - filled, len(self._buf) - self._i)
+            out[filled:filled + k] = self._buf[self._i:self._i + k, :, :, 0]
+            self._i += k
+            filled += k
+        return out
+
+    def _refill(self) -> None:
+        self._buf = np.stack([sg * st.take(_FLOOR_CHUNK) for sg, st in zip(self._sigma, self._streams)],
+                             axis=1)[..., None]
+        self._i = 0
+
     def step(self) -> np.ndarray:
         """Displacement ``(B, 3)`` um at the end of the next period."""
         if self._i == len(self._buf):
-            self._buf = np.stack([sg * st.take(_FLOOR_CHUNK) for sg, st in zip(self._sigma, self._streams)],
-                                 axis=1)[..., None]
-            self._i = 0
+            self._refill()
         a = self._buf[self._i]
         self._i += 1
         if self._P is not None:
@@ -105,6 +122,7 @@ class _BatchStageBase:
     """Shared stepping, reading and open-loop logic; subclasses move the mechanics."""
 
     dt_s: float
+    compiled = False
 
     def _init_common(self, seeds, config: StageConfig | None) -> None:
         self.config = config or StageConfig()
@@ -150,7 +168,10 @@ class _BatchStageBase:
         n = u.shape[1]
         pz, sat, tb, yv, yu, cl = (np.empty((n, self.n, 3)) for _ in range(6))
         t0 = self.time_s
-        for k in range(n):
+        k_start = n
+        if self.compiled and n and batch_kernel.supported(self, started=False):
+            k_start = 1                     # the first period starts the gauge filter, then the compiled loop
+        for k in range(min(n, k_start)):
             _, v_piezo, v_free, s = self.electronics.actuate(np.ascontiguousarray(u[:, k]))
             self._advance(v_free)
             self._add_floor()
@@ -159,6 +180,10 @@ class _BatchStageBase:
             pz[k], sat[k], tb[k], yv[k], yu[k], cl[k] = v_piezo, s, self.table_um, sens.reading_V, \
                 sens.reading_um, sens.clipped
             self.last_piezo_V, self.last_saturated, self.last_clipped = v_piezo, s, sens.clipped
+        if k_start < n:
+            rest = batch_kernel.twin_open_loop(self, np.ascontiguousarray(np.swapaxes(u[:, k_start:], 0, 1)))
+            for whole, part in zip((pz, sat, tb, yv, yu, cl), rest):
+                whole[k_start:] = part
         t = self._trace_time(t0, n)
         return [Trace(t_s=t, u_V=np.array(u[b]), piezo_V=pz[:, b].copy(), saturated=sat[:, b].astype(bool),
                       table_um=tb[:, b].copy(), sensor_V=yv[:, b].copy(), sensor_um=yu[:, b].copy(),
@@ -236,10 +261,16 @@ class BatchTwinStage(_BatchStageBase):
         per member and matrix), bit for bit. False: ``[x+; y] = [[A, B], [C A, C B + D]] [x; v]``
         in one product (a ``gemm`` for a shared twin), about twice as fast, equal to
         1e-12 relative (summation order).
+    compiled : bool
+        True (default): :meth:`run` and :func:`~nanosim.experiments.batch_loop.run_closed_loop_batch`
+        step the members in the compiled loop (:mod:`nanosim.plant.batch_kernel`) when numba is
+        installed: the same operations in the same order and the same BLAS products, the same
+        numbers (``tests/test_batch_kernel.py``). False: one numpy call per effect and period.
     """
 
     def __init__(self, twins, seeds: Sequence[int], config: StageConfig | None = None, home_um=None,
-                 exact: bool = True, floor_models=None):
+                 exact: bool = True, floor_models=None, compiled: bool = True):
+        self.compiled = bool(compiled)
         self._init_common(seeds, config)
         if floor_models is not None and not isinstance(floor_models, (list, tuple)):
             floor_models = [floor_models] * self.n
@@ -284,6 +315,24 @@ class BatchTwinStage(_BatchStageBase):
 
     def _trace_time(self, t0: float, n: int) -> np.ndarray:
         return self.dt_s * np.arange(1, n + 1)          # as TwinStage.run
+
+    def kernel_twin(self) -> tuple:
+        """The twin for :func:`nanosim.plant.batch_kernel.twin_closed_loop`:
+        ``(mode, A, B, C, D, P, x)``, matrices as ``(1 or B, ., .)`` stacks, ``x`` a contiguous copy.
+        """
+        e3 = np.zeros((1, 0, 0))
+        x = np.ascontiguousarray(self._x)
+        if not self.exact:
+            if getattr(self, "_P3", None) is None:
+                self._P3 = np.ascontiguousarray(self._P if self.per_member else self._P[None])   # P.T if shared
+            return (3 if self.per_member else 2), e3, e3, e3, e3, self._P3, x
+        mats = tuple(np.ascontiguousarray(m if self.per_member else m[None]) for m in
+                     (self._A, self._B, self._C, self._D))
+        return (1 if self.per_member else 0), *mats, e3, x
+
+    def kernel_twin_done(self, x: np.ndarray) -> None:
+        """Take the twin state back from the compiled loop."""
+        self._x = x
 
     def _trace_clipped(self, clipped: np.ndarray) -> np.ndarray:
         return np.zeros_like(clipped)                    # as TwinStage.run

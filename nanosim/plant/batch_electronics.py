@@ -32,6 +32,7 @@ from typing import Sequence
 
 import numpy as np
 
+from nanosim.plant import batch_kernel
 from nanosim.plant.electronics import ActuatorChain, ElectronicsConfig, SensorChain
 from nanosim.plant.filters import AmplifierLag, DelayLine, SampledFilter, butterworth_lowpass
 from nanosim.plant.piezo import PiezoConfig
@@ -53,15 +54,85 @@ class _NoiseTerms:
         self._buf = np.empty((0, 3 * len(self._seeds)))
         self._i = 0
 
+    def _refill(self) -> None:
+        zeros = np.zeros((_NOISE_CHUNK, 3))
+        self._buf = np.concatenate([self._extract(ch.run(zeros)) for ch in self._chains], axis=1)
+        self._i = 0
+
+    def take(self, n: int) -> np.ndarray:
+        """The next ``n`` rows, shape ``(n, 3 B)``: the numbers ``n`` calls of :meth:`take1` give."""
+        out = np.empty((n, 3 * len(self._seeds)))
+        filled = 0
+        while filled < n:
+            if self._i == len(self._buf):
+                self._refill()
+            k = min(n - filled, len(self._buf) - self._i)
+            out[filled:filled + k] = self._buf[self._i:self._i + k]
+            self._i += k
+            filled += k
+        return out
+
     def take1(self) -> np.ndarray:
         """Next noise term of every channel, shape ``(3 B,)``."""
         if self._i == len(self._buf):
-            zeros = np.zeros((_NOISE_CHUNK, 3))
-            self._buf = np.concatenate([self._extract(ch.run(zeros)) for ch in self._chains], axis=1)
-            self._i = 0
+            self._refill()
         row = self._buf[self._i]
         self._i += 1
         return row
+
+
+class _StackedNoise(_NoiseTerms):
+    """The same terms as :class:`_NoiseTerms`, drawn from the members' streams and shaped for all
+    channels at once (the chains' arithmetic: ``0 + sigma w (+ flicker)``, flicker through
+    :func:`~nanosim.plant.batch_kernel.flicker_cascade`), instead of running each member's chain.
+    """
+
+    def __init__(self, make_chain, kind: str, seeds):
+        self._kind = kind
+        super().__init__(make_chain, None, seeds)
+
+    def reset(self) -> None:
+        super().reset()
+        ch0 = self._chains[0]
+        if self._kind == "gauge":
+            self._sigma = ch0._sigma_um
+        elif self._kind == "amp":
+            self._sigma = ch0._sigma_amp
+        else:
+            self._sigma = ch0._sigma
+            fl = ch0._flicker
+            if fl is not None:
+                self._fl_gain = fl._gain
+                self._fl_bz = np.array([bz for bz, _ in fl._sec])
+                self._fl_ap = np.array([ap for _, ap in fl._sec])
+                self._fl_z = np.zeros((len(fl._sec), 3 * len(self._seeds)))
+
+    def _refill(self) -> None:
+        k = _NOISE_CHUNK
+        ch0 = self._chains[0]
+        if self._kind == "gauge":
+            total = self._sigma * np.concatenate([ch._noise.take(k) for ch in self._chains], axis=1)
+        elif self._kind == "amp":
+            total = self._sigma * np.concatenate([ch._amp_noise.take(k) for ch in self._chains], axis=1)
+        else:
+            total = None
+            if self._sigma > 0.0:
+                total = self._sigma * np.concatenate([ch._noise.take(k) for ch in self._chains], axis=1)
+            if ch0._flicker is not None:
+                e = np.concatenate([ch._flicker_noise.take(k) for ch in self._chains], axis=1)
+                f = batch_kernel.flicker_cascade(e, self._fl_gain, self._fl_bz, self._fl_ap, self._fl_z)
+                total = f if total is None else total + f
+        self._buf = 0.0 + total
+        self._i = 0
+
+
+def _noise_terms(make_chain, extract, kind: str, seeds) -> _NoiseTerms:
+    """Stacked noise when numba is there and the chain has no AR-shaped white noise (stage v1), else per chain."""
+    if batch_kernel.AVAILABLE:
+        ch = make_chain(0)
+        if getattr(ch, "_ar", 0.0) == 0.0:
+            return _StackedNoise(make_chain, kind, seeds)
+    return _NoiseTerms(make_chain, extract, seeds)
 
 
 class BatchReading:
@@ -147,17 +218,17 @@ class BatchElectronics:
         self._dac_noise = self._amp_noise = self._gauge_noise = None
         if sigma > 0.0 or flick > 0.0:          # u_dac = 0 + (white + flicker)
             dac_cfg = replace(e, sensor_noise=False, amplifier_noise=False, **quiet)
-            self._dac_noise = _NoiseTerms(lambda s: ActuatorChain(dac_cfg, PiezoConfig.linear(), seed=s),
-                                          lambda smp: smp.u_dac_V, self.seeds)
+            self._dac_noise = _noise_terms(lambda s: ActuatorChain(dac_cfg, PiezoConfig.linear(), seed=s),
+                                           lambda smp: smp.u_dac_V, "dac", self.seeds)
         if sigma_amp > 0.0:                     # v_piezo = 1 x (0 + amplifier noise)
             amp_cfg = replace(e, sensor_noise=False, dac_noise=False,
                               amplifier_gain=1.0, **quiet)
-            self._amp_noise = _NoiseTerms(lambda s: ActuatorChain(amp_cfg, PiezoConfig.linear(), seed=s),
-                                          lambda smp: smp.v_piezo_V, self.seeds)
+            self._amp_noise = _noise_terms(lambda s: ActuatorChain(amp_cfg, PiezoConfig.linear(), seed=s),
+                                           lambda smp: smp.v_piezo_V, "amp", self.seeds)
         if e.sensor_noise and e.sensor_noise_std_nm > 0:
             gauge_cfg = replace(e, dac_noise=False, **quiet)
-            self._gauge_noise = _NoiseTerms(lambda s: SensorChain(gauge_cfg, seed=s), lambda smp: smp.reading_um,
-                                            self.seeds)
+            self._gauge_noise = _noise_terms(lambda s: SensorChain(gauge_cfg, seed=s), lambda smp: smp.reading_um,
+                                             "gauge", self.seeds)
         self.reset()
 
     def reset(self) -> None:

@@ -1,0 +1,135 @@
+"""The compiled batch loop (numba) gives the numbers of the numpy batch path and of the single stage.
+
+The compiled loop makes the numpy path's element-wise operations in the same order (numpy's pairwise
+sum for the hysteresis, the creep sum left to right) and the same BLAS products (``gemm`` for shared
+matrices with ``exact=False``, one ``gemv`` per member otherwise), so the records are equal bit for bit;
+B = 1 equals :class:`~nanosim.plant.twin.TwinStage` with :class:`DiscreteController` bit for bit.
+"""
+import numpy as np
+import pytest
+
+from nanosim.design.controller import ControllerConfig, DiscreteController
+from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
+from nanosim.experiments.loop import run_closed_loop
+from nanosim.plant import batch_kernel
+from nanosim.plant.batch import BatchTwinStage
+from nanosim.plant.filters import FlickerShaper
+from nanosim.plant.floor import floor_model
+from nanosim.plant.linearize import linearize
+from nanosim.plant.modes import modal_analysis
+from nanosim.plant.stage import Stage, StageConfig
+from nanosim.plant.tolerances import default_tolerances, sample_model
+from nanosim.plant.twin import TwinStage
+
+pytestmark = pytest.mark.skipif(not batch_kernel.AVAILABLE, reason="numba is not installed")
+
+FIELDS = ("y_um", "table_um", "u_V", "saturated")
+
+
+def _controller(G0_um_per_V, two_dof: bool, f_hz: float) -> ControllerConfig:
+    T, leak = 2.5e-4, 0.9995
+    g = 2 * np.pi * f_hz * T * np.linalg.inv(G0_um_per_V / 5.0)
+    if not two_dof:
+        return ControllerConfig(leak * np.eye(3), np.eye(3), g, g, T)
+    a = 0.95
+    A = np.block([[leak * np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), a * np.eye(3)]])
+    B = np.block([[np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), (1 - a) * np.eye(3)]])
+    return ControllerConfig(A, B, np.hstack([g, 0.3 * g]), np.hstack([g, -0.3 * g]), T, n_error=3)
+
+
+@pytest.fixture(scope="module")
+def plants():
+    tm = default_tolerances()
+    out = []
+    for i in (0, 1):
+        m = sample_model(tm.sample(3, i), tm)
+        out.append(dict(twin=linearize(Stage(config=StageConfig.ideal(), model=m)), home=Stage(model=m).table_um,
+                        G0=modal_analysis(m).static_gain_um_per_V, floor=floor_model(m)))
+    return out
+
+
+def _ref(n=700):
+    ref = np.zeros((n, 3))
+    ref[80:, 0] = 2.0
+    ref[300:, 1] = -1.0
+    ref[500:, 2] = 15.0                # Z: into the amplifier limit under the 20 Hz loop
+    return ref
+
+
+def test_pairwise_sum_is_numpys():
+    rng = np.random.default_rng(0)
+    for n in range(0, 129):
+        v = rng.standard_normal(n) * np.exp(4 * rng.standard_normal(n))
+        assert batch_kernel.pairwise_sum(v) == np.add.reduce(v[None, :], axis=-1)[0], n
+
+
+def test_flicker_cascade_is_flicker_shaper():
+    e = np.random.default_rng(1).standard_normal((3000, 6))
+    ref = FlickerShaper(2e-5, 0.01, 4000.0, 6)
+    sec = ref._sec
+    z = np.zeros((len(sec), 6))
+    got = np.vstack([batch_kernel.flicker_cascade(part, ref._gain, np.array([b for b, _ in sec]),
+                                                  np.array([a for _, a in sec]), z) for part in (e[:1700], e[1700:])])
+    assert np.array_equal(got, ref.run(e))
+
+
+@pytest.mark.parametrize("exact", [True, False])
+@pytest.mark.parametrize("two_dof", [False, True])
+def test_compiled_closed_loop_equals_numpy_path(plants, exact, two_dof):
+    """Per-member twins with floor vibration, per-member controllers (20 Hz: rings and saturates)."""
+    ctrls = [_controller(p["G0"], two_dof, 20.0) for p in plants]
+
+    def run(compiled):
+        st = BatchTwinStage([p["twin"] for p in plants], [4, 11], home_um=np.array([p["home"] for p in plants]),
+                            floor_models=[p["floor"] for p in plants], exact=exact, compiled=compiled)
+        tr = run_closed_loop_batch(st, BatchController(ctrls, exact=exact), _ref(), settle_s=0.05)
+        return tr, st
+
+    (fast, st_f), (slow, st_s) = run(True), run(False)
+    assert batch_kernel.supported(st_f) and not batch_kernel.supported(st_s)
+    for a, b in zip(fast, slow):
+        for k in FIELDS:
+            assert np.array_equal(getattr(a, k), getattr(b, k)), k
+    # the states left behind are the same too: a second run continues identically
+    assert np.array_equal(st_f.table_um, st_s.table_um) and st_f.time_s == st_s.time_s
+    assert np.array_equal(st_f.electronics.hysteresis_state, st_s.electronics.hysteresis_state)
+
+
+def test_compiled_shared_twin_and_controller_fast_products(plants):
+    """The benchmark's configuration: one twin and one controller for all members, ``exact=False`` (gemm)."""
+    p = plants[0]
+    c = _controller(p["G0"], True, 5.0)
+
+    def run(compiled):
+        st = BatchTwinStage(p["twin"], [1, 2, 3], home_um=p["home"], exact=False, compiled=compiled)
+        return run_closed_loop_batch(st, BatchController(c, n=3, exact=False), _ref(), settle_s=0.05)
+
+    for a, b in zip(run(True), run(False)):
+        for k in FIELDS:
+            assert np.array_equal(getattr(a, k), getattr(b, k)), k
+
+
+@pytest.mark.parametrize("two_dof", [False, True])
+def test_compiled_batch_of_one_equals_single_stage(plants, two_dof):
+    p = plants[1]
+    c = _controller(p["G0"], two_dof, 20.0)
+    st = BatchTwinStage([p["twin"]], [9], home_um=p["home"], floor_models=[p["floor"]])
+    (got,) = run_closed_loop_batch(st, BatchController([c]), _ref(), settle_s=0.05)
+    assert batch_kernel.supported(st)
+    ref = run_closed_loop(TwinStage(p["twin"], seed=9, home_um=p["home"], floor_model=p["floor"]),
+                          DiscreteController(c), _ref(), settle_s=0.05)
+    for k in FIELDS:
+        assert np.array_equal(getattr(got, k), getattr(ref, k)), k
+    assert got.saturated.any()          # the comparison covers saturation
+
+
+@pytest.mark.parametrize("config", [StageConfig(), StageConfig.v1()], ids=["v2", "v1"])
+def test_compiled_open_loop_equals_single_stage(plants, config):
+    p = plants[0]
+    u = 1.5 + np.cumsum(np.random.default_rng(5).standard_normal((2, 900, 3)) * 0.05, axis=1)
+    traces = BatchTwinStage([p["twin"]] * 2, [0, 6], config=config, home_um=p["home"],
+                            floor_models=p["floor"]).run(u)
+    for b, s in enumerate([0, 6]):
+        ref = TwinStage(p["twin"], seed=s, config=config, home_um=p["home"], floor_model=p["floor"]).run(u[b])
+        for k in ref.__dataclass_fields__:
+            assert np.array_equal(getattr(ref, k), getattr(traces[b], k)), (b, k)
