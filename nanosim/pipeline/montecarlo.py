@@ -28,11 +28,9 @@ seals the folder with a new manifest only when everything is written.
 """
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -42,7 +40,7 @@ import numpy as np
 from nanosim.fileio import save_figure, write_json, write_text
 from nanosim.pipeline import mc_stats
 from nanosim.pipeline.config import MonteCarloConfig
-from nanosim.pipeline.runfolder import RunFolderError, check_writable, sha256_file, write_manifest
+from nanosim.pipeline.runfolder import RunFolderError, check_writable, sha256_file, write_manifest, writer_lock
 from nanosim.pipeline.scaleout import open_executor, run_tasks
 
 __all__ = ["run_montecarlo", "run_chunk", "sample_plants", "summarize", "report_markdown"]
@@ -144,37 +142,6 @@ def _sample_path(out: Path, sub: str, i: int) -> Path:
     return out / sub / f"sample_{i:05d}.json"
 
 
-@contextlib.contextmanager
-def _writer_lock(out: Path):
-    """The run folder's writer lock (the lock file and pid convention of :mod:`runfolder`)."""
-    lock = out.parent / f".{out.name}.lock"
-    try:
-        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-    except FileExistsError:
-        pid = None
-        with contextlib.suppress(OSError, ValueError):
-            pid = int(lock.read_text().strip() or "0")
-        alive = False
-        if pid:
-            try:
-                os.kill(pid, 0)
-                alive = True
-            except ProcessLookupError:
-                alive = False
-            except PermissionError:
-                alive = True
-        if alive:
-            raise RunFolderError(f"--out: another nanosim process (pid {pid}) is writing {str(out)!r}") from None
-        lock.unlink(missing_ok=True)
-        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-    with os.fdopen(fd, "w") as fh:
-        fh.write(str(os.getpid()))
-    try:
-        yield
-    finally:
-        lock.unlink(missing_ok=True)
-
-
 def _plan(controller_path: Path, s: MonteCarloConfig, names, tm_dict) -> dict:
     from nanosim.design.controller import DiscreteController
 
@@ -225,7 +192,7 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
     plan = _plan(controller_path, settings, names, tm.to_dict())
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    with _writer_lock(out):
+    with writer_lock(out):
         prev = out / PLAN_JSON
         if prev.is_file():
             old = json.loads(prev.read_text()).get("identity")
