@@ -8,7 +8,8 @@
 * ``pi-notch`` (:mod:`.pi_notch`) -- decoupled PI with notches (the industry baseline);
 * ``damping-tracking`` (:mod:`.damping_tracking`) -- positive position feedback plus integral tracking;
 * ``robust`` (:mod:`.robust`) -- Glover-McFarlane H-infinity loop shaping against the stage's uncertainty set;
-* ``feedforward`` (:mod:`.feedforward`) -- model-inversion feedforward on top of a feedback design.
+* ``feedforward`` (:mod:`.feedforward`) -- model-inversion feedforward on top of a feedback design;
+* ``lqg`` (:mod:`.lqg`) -- H2-optimal output feedback with integral action from the stage's noise levels.
 
 :mod:`.protocol` turns a name, a file or ``module:function`` into a controller.
 """
@@ -46,6 +47,11 @@ def _robust(G, **kw):
     return design_robust(G, **kw)
 
 
+def _lqg(G, **kw):
+    from nanosim.design.architectures.lqg import design_lqg
+    return design_lqg(G, **kw)
+
+
 def _feedforward(G, **kw):
     from nanosim.design.architectures.feedforward import design_feedforward
     return design_feedforward(G, **kw)
@@ -59,6 +65,7 @@ BENCH: dict[str, Callable[..., BenchDesign]] = {
     "damping-tracking": _damping_tracking,
     "robust": _robust,
     "feedforward": _feedforward,
+    "lqg": _lqg,
 }
 
 
