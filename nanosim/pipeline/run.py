@@ -21,7 +21,7 @@ from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import CharacterizeConfig, DesignConfig, IdentifyConfig, PipelineConfig
 
 __all__ = ["step_modes", "write_twin_npz", "step_identify", "step_design", "step_characterize", "step_report",
-           "PIPELINE_STEPS", "run_pipeline"]
+           "PIPELINE_STEPS", "run_pipeline", "characterize_twin_batch"]
 
 
 def step_modes(out: Path, mjcf=None) -> None:
@@ -89,13 +89,62 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _characterize_twin(out: str, seed: int, mjcf) -> float:
-    """The twin's experiments (run in a worker process); returns their wall time [s]."""
-    from nanosim.pipeline.characterize import run_characterize
+def characterize_twin_batch(controller_npz, out_dir, seed: int, mjcf=None) -> dict:
+    """``nanosim characterize --twin`` on the batch engine (one member, compiled loop).
 
+    The same experiments, stage, controller and seed as
+    :func:`~nanosim.pipeline.characterize.run_characterize` with ``twin=True``, run by
+    :func:`~nanosim.experiments.batch_suite.run_experiments_batch` with exact products, which
+    gives the single-stage numbers bit for bit (``tests/test_batch.py``, ``tests/test_batch_kernel.py``);
+    writes the same ``metrics.json`` and figures into ``out_dir``.
+    """
+    from nanosim import constants as C
+    from nanosim import experiments
+    from nanosim.design.controller import DiscreteController
+    from nanosim.experiments.batch_suite import MemberPlant, run_experiments_batch
+    from nanosim.experiments.registry import ExperimentContext
+    from nanosim.fileio import save_figure
+    from nanosim.pipeline.characterize import make_factory
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.modes import modal_analysis
+    from nanosim.plant.stage import Stage, StageConfig
+
+    out = Path(out_dir)
+    names = list(experiments.load_builtin())
+    ctrl = DiscreteController.from_npz(controller_npz, expected_dt=C.CONTROL_PERIOD_S)
+    factory, base = make_factory(True, mjcf=mjcf)
+    G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
+    plant = MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=base.model)), model=base.model,
+                        home_um=base.table_um.copy(), static_gain_um_per_V=G0, base_stage=base)
+    seconds, t_last = {}, [time.perf_counter()]
+
+    def done(name):
+        t = time.perf_counter()
+        seconds[name], t_last[0] = round(t - t_last[0], 2), t
+
+    (metrics,), (results,) = run_experiments_batch(names, [plant], ctrl.config, engine="twin", seed=seed,
+                                                   exact=True, progress=done)
+    if "errors" in metrics:
+        name, msg = next(iter(metrics["errors"].items()))
+        raise RuntimeError(f"characterize --twin: experiment {name!r} failed: {msg}")
+    ctx = ExperimentContext(factory=factory, controller=DiscreteController(ctrl.config), seed=seed,
+                            static_gain_um_per_V=G0, base_stage=base)
+    for name in names:
+        exp = experiments.get(name)
+        if exp.figure is not None and exp.figure_name:
+            save_figure(exp.figure(results[name], ctx), out / exp.figure_name)
+    metrics["experiment_seconds"] = seconds
+    metrics["plant"] = "linear twin (same electromechanics)"
+    metrics["seed"] = seed
+    metrics["units"] = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
+    write_json(out / A.METRICS_JSON, metrics)
+    return metrics
+
+
+def _characterize_twin(out: str, seed: int, mjcf) -> float:
+    """The twin's experiments (run in a worker process, on the batch engine); returns their wall time [s]."""
     t0 = time.perf_counter()
-    run_characterize(Path(out) / A.CONTROLLER_NPZ, Path(out) / A.TWIN_DIR, CharacterizeConfig(seed=seed, twin=True),
-                     mjcf=mjcf, progress=False)
+    characterize_twin_batch(Path(out) / A.CONTROLLER_NPZ, Path(out) / A.TWIN_DIR, seed, mjcf)
     return round(time.perf_counter() - t0, 2)
 
 
