@@ -17,7 +17,8 @@ from pathlib import Path
 from nanosim import __version__
 from nanosim import constants as C
 from nanosim.pipeline import artifacts as A
-from nanosim.pipeline.config import (DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER, CharacterizeConfig, DesignConfig,
+from nanosim.pipeline.config import (DEFAULT_ARCHITECTURE, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER,
+                                     DESIGN_ARCHITECTURES, CharacterizeConfig, DesignConfig,
                                      IdentifyConfig, PipelineConfig)
 from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_REDUCED_ORDER
 
@@ -101,7 +102,8 @@ def _cmd_modes(args) -> int:
 def _design_config(args) -> DesignConfig:
     if args.paper_design:
         return DesignConfig.paper(weights=args.weights)
-    return DesignConfig(reduced_order=args.reduced_order, damping_zeta=args.damping_zeta, weights=args.weights)
+    return DesignConfig(reduced_order=args.reduced_order, damping_zeta=args.damping_zeta, weights=args.weights,
+                        architecture=args.architecture)
 
 
 def _say(msg: str) -> None:
@@ -301,6 +303,9 @@ def _add_design_arguments(parser) -> None:
                              f"(default {DEFAULT_DAMPING_ZETA}; 0 = no damping loop)")
     parser.add_argument("--paper-design", dest="paper_design", action="store_true",
                         help="the paper's set-up: 10-state model, single H-infinity loop, no damping loop")
+    parser.add_argument("--architecture", choices=DESIGN_ARCHITECTURES, default=DEFAULT_ARCHITECTURE,
+                        help=f"exported controller (default {DEFAULT_ARCHITECTURE}, the bench's default by the "
+                             "scorecard rule; hinf: the H-infinity design of --weights/--reduced-order/--damping-zeta)")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -93,3 +93,11 @@ def test_lqg_on_the_identified_model_margin_bandwidth_and_dac_noise(model):
     var_ol = np.trapezoid((np.abs(G[:, 0, :]) ** 2).sum(axis=1), fn)
     assert np.sqrt(var_cl / var_ol) < 1 / 4
     assert d.parameters["input_noise_V"] == constants.DAC_WHITE_NOISE_V
+
+
+def test_design_config_exports_lqg_by_default_and_the_paper_design_stays_hinf():
+    from nanosim.pipeline.config import DesignConfig
+    assert DesignConfig().architecture == "lqg"
+    assert DesignConfig.paper().architecture == "hinf"
+    with pytest.raises(ValueError, match="architecture"):
+        DesignConfig(architecture="pid")

@@ -13,7 +13,7 @@ from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_REDUCED_ORDER
 
 __all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConfig", "MonteCarloConfig",
            "SweepConfig", "CompareConfig", "DEFAULT_REDUCED_ORDER", "DEFAULT_DAMPING_ZETA",
-           "DEFAULT_DAMPING_LOWPASS_HZ"]
+           "DEFAULT_DAMPING_LOWPASS_HZ", "DEFAULT_ARCHITECTURE", "DESIGN_ARCHITECTURES"]
 
 # 14 states: the Hankel singular values fall 27x after state 12, and states 13-14 (the
 # 1 s creep stage) move the full-model S bandwidth from 27.9 to 29.7 Hz (README, "Controller").
@@ -21,6 +21,11 @@ DEFAULT_REDUCED_ORDER = 14
 # Damping ratio the inner active-damping loop adds to the first mode (0 = no damping loop).
 DEFAULT_DAMPING_ZETA = 0.1
 DEFAULT_DAMPING_LOWPASS_HZ = 400.0
+# the exported controller of `nanosim design` (#13, chosen by the bench's scorecard rule): "lqg" is the bench
+# design nanosim.design.architectures.lqg; "hinf" the H-infinity design these settings describe (the paper's
+# with --paper-design, else hinf-damped)
+DESIGN_ARCHITECTURES = ("lqg", "hinf")
+DEFAULT_ARCHITECTURE = "lqg"
 
 
 def _check_seed(seed) -> int:
@@ -81,6 +86,10 @@ class DesignConfig:
         approximant at the plant input) [samples]; None = the loop's actual delay relative
         to the identified model (:func:`nanosim.pipeline.design.model_loop_delay_samples`);
         0 = none (the paper).
+    architecture : str
+        The exported controller: ``"lqg"`` (default, :mod:`nanosim.design.architectures.lqg`; the
+        H-infinity design is still made and described in ``design.json`` as the reference) or
+        ``"hinf"`` (the H-infinity design itself).
     """
 
     reduced_order: int = DEFAULT_REDUCED_ORDER
@@ -90,8 +99,11 @@ class DesignConfig:
     discretization: str = "auto"
     gamma_relax: float = 0.0
     delay_samples: int | None = None
+    architecture: str = DEFAULT_ARCHITECTURE
 
     def __post_init__(self):
+        if self.architecture not in DESIGN_ARCHITECTURES:
+            raise ValueError(f"architecture: expected one of {DESIGN_ARCHITECTURES}, got {self.architecture!r}")
         d = self.delay_samples
         if d is not None and (isinstance(d, bool) or not isinstance(d, int) or not 0 <= d <= 4):
             raise ValueError(f"delay_samples: expected None (the loop's delay) or an integer in 0..4, got {d!r}")
@@ -109,7 +121,8 @@ class DesignConfig:
     @classmethod
     def paper(cls, **overrides) -> "DesignConfig":
         """The paper's set-up: 10-state design model, single H-infinity loop, no damping loop, no delay."""
-        return replace(cls(reduced_order=PAPER_REDUCED_ORDER, damping_zeta=0.0, delay_samples=0), **overrides)
+        return replace(cls(reduced_order=PAPER_REDUCED_ORDER, damping_zeta=0.0, delay_samples=0, architecture="hinf"),
+                       **overrides)
 
     @property
     def has_damping_loop(self) -> bool:
