@@ -123,6 +123,7 @@ class _BatchStageBase:
 
     dt_s: float
     compiled = False
+    compiled_electronics = False
 
     def _init_common(self, seeds, config: StageConfig | None) -> None:
         self.config = config or StageConfig()
@@ -133,6 +134,8 @@ class _BatchStageBase:
     def reset(self) -> None:
         """Home state, virgin piezos, noise streams rewound (every member)."""
         self.electronics = BatchElectronics(self.config.electronics, self.config.piezo, self.seeds)
+        if self.compiled_electronics:
+            self.electronics.use_compiled_steps()
         self.floor = _BatchFloor(self._floor_models, self.config.floor, self.seeds, getattr(self, "exact", True)) \
             if self._floor_models else None
         self.time_s = 0.0
@@ -358,8 +361,11 @@ class BatchMujocoStage(_BatchStageBase):
         One seed per member.
     config : StageConfig, optional
     nthread : int, optional
-        Threads stepping the members (default: the number of CPUs, at most B). Results
-        do not depend on it.
+        Threads stepping the members (default: the number of CPUs, at most B; the calling
+        thread steps one share). Results do not depend on it.
+    compiled : bool
+        True (default): the electronics of each period are one compiled call
+        (:class:`nanosim.plant.batch_kernel.StepElectronics`, numba; the same numbers).
 
     Notes
     -----
@@ -367,7 +373,8 @@ class BatchMujocoStage(_BatchStageBase):
     """
 
     def __init__(self, models, seeds: Sequence[int], config: StageConfig | None = None,
-                 nthread: int | None = None):
+                 nthread: int | None = None, compiled: bool = True):
+        self.compiled_electronics = bool(compiled)
         self._init_common(seeds, config)
         ms = list(models) if isinstance(models, (list, tuple)) else [models] * self.n
         if len(ms) != self.n:
@@ -390,7 +397,7 @@ class BatchMujocoStage(_BatchStageBase):
             raise ValueError(f"nthread: expected a positive integer, got {nthread}")
         self.nthread = min(nthread, self.n)
         self._parts = [list(range(self.n))[k::self.nthread] for k in range(self.nthread)]
-        self._pool = ThreadPoolExecutor(self.nthread) if self.nthread > 1 else None
+        self._pool = ThreadPoolExecutor(self.nthread - 1) if self.nthread > 1 else None
         self.reset()
 
     def _reset_mechanics(self) -> None:
@@ -404,7 +411,9 @@ class BatchMujocoStage(_BatchStageBase):
         if self._pool is None:
             _step_members(*args, range(self.n))
         else:
-            for f in [self._pool.submit(_step_members, *args, part) for part in self._parts]:
+            futures = [self._pool.submit(_step_members, *args, part) for part in self._parts[1:]]
+            _step_members(*args, self._parts[0])            # the calling thread steps its share
+            for f in futures:
                 f.result()
         self.table_um = out
 

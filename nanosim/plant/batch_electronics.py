@@ -162,6 +162,7 @@ class BatchElectronics:
         if not self.seeds:
             raise ValueError("seeds: expected at least one seed (one per batch member), got none")
         self.n = len(self.seeds)
+        self._steps = None
         e, p = electronics, piezo
         nch = 3 * self.n
         # DAC and amplifier (ActuatorChain._electronics)
@@ -231,6 +232,11 @@ class BatchElectronics:
                                              "gauge", self.seeds)
         self.reset()
 
+    def use_compiled_steps(self) -> None:
+        """Make :meth:`actuate` and :meth:`read` compiled calls (numba; the same numbers), if numba is there."""
+        if batch_kernel.AVAILABLE:
+            self._steps = batch_kernel.StepElectronics(self)
+
     def reset(self) -> None:
         """Virgin piezos, no creep history, every noise stream rewound to its seed."""
         if self._hyst:
@@ -254,6 +260,8 @@ class BatchElectronics:
         nothing); the creep sum ``s h + sum_k s c_k x_k`` is one reduction along the
         stage axis, which numpy evaluates left to right like the single chain's loop.
         """
+        if self._steps is not None:
+            return self._steps.actuate(u_V)
         shape = u_V.shape
         u = self._delay.step(u_V.reshape(-1))
         maximum, minimum = np.maximum, np.minimum
@@ -302,6 +310,10 @@ class BatchElectronics:
 
     def read(self, displacement_um: np.ndarray) -> BatchReading:
         """True probe displacements ``(B, 3)`` um -> gauge noise, clip, ADC (one sample per member)."""
+        if self._steps is not None:
+            out = self._steps.read(displacement_um)
+            if out is not None:
+                return BatchReading(*out)
         shape = displacement_um.shape
         d = displacement_um.reshape(-1)
         if self._gauge_filter is not None:

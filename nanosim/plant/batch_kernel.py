@@ -34,7 +34,8 @@ except ImportError:                    # pragma: no cover
         """Stand-in decorator without numba."""
         return (lambda f: f) if not args or not callable(args[0]) else args[0]
 
-__all__ = ["AVAILABLE", "BLOCK", "flicker_cascade", "pairwise_sum", "supported", "twin_closed_loop", "twin_open_loop"]
+__all__ = ["AVAILABLE", "BLOCK", "flicker_cascade", "pairwise_sum", "supported", "twin_closed_loop", "twin_open_loop",
+           "StepElectronics"]
 
 BLOCK = 4096                # periods per compiled call (bounds the pre-drawn noise rows)
 
@@ -111,6 +112,112 @@ def _matvec(M, x, out):
 
 
 @njit(cache=True, error_model="numpy")
+def _actuate(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, zw, acc, hcr, csc, ca, cb, cx, v_pz, v_free, satv):
+    """One period of :meth:`BatchElectronics.actuate` on the channel commands ``uu`` (delayed in place)."""
+    nch = uu.shape[0]
+    nd = ip[I_DELAY]
+    nr = pr.shape[0]
+    ncr = csc.shape[0]
+    cscale = fp[F_CSCALE]
+    center, lsb, clo, chi = fp[F_CENTER], fp[F_LSB], fp[F_CLO], fp[F_CHI]
+    lo, hi, gain = fp[F_LO], fp[F_HI], fp[F_GAIN]
+    if nd > 0:
+        for ch in range(nch):
+            x_in = uu[ch]
+            uu[ch] = dbuf[0, ch]
+            for j in range(nd - 1):
+                dbuf[j, ch] = dbuf[j + 1, ch]
+            dbuf[nd - 1, ch] = x_in
+    for ch in range(nch):
+        uc = uu[ch]
+        code = 0.0
+        code_c = 0.0
+        if ip[I_QUANT]:
+            code = np.rint((uc - center) / lsb)
+            code_c = max(code, clo)
+            code_c = min(code_c, chi)
+            u_dac = center + code_c * lsb
+        else:
+            u_dac = uc
+        if ip[I_DACN]:
+            u_dac = u_dac + dacn[kk, ch]
+        u_in = u_dac + ampn[kk, ch] if ip[I_AMPN] else u_dac
+        if ip[I_SAT]:
+            u_cmd = min(max(u_in, lo), hi)
+            s = u_cmd != u_in
+            if ip[I_QUANT] and not ip[I_IMPLIED]:
+                s = s or (code_c != code)
+        else:
+            u_cmd = u_in
+            s = (code_c != code) if ip[I_QUANT] else False
+        satv[ch] = s
+        vin = gain * u_cmd
+        if ip[I_LAG]:
+            vk = lag_v[ch]
+            lag_v[ch] = vin * fp[F_LAG_1MA] - vk * fp[F_LAG_NA]
+            v = vin + (vk - vin) * fp[F_LAG_M]
+        else:
+            v = vin
+        v_pz[ch] = v
+        v_free[ch] = v
+    if ip[I_HYST]:                      # play operators, then numpy's pairwise sum of z w per channel
+        for j in range(nr):
+            rj, nrj, wj = pr[j], -pr[j], pw[j]
+            for ch in range(nch):
+                v = v_pz[ch]
+                zj = max(z[j, ch], v + nrj)
+                zj = min(zj, v + rj)
+                z[j, ch] = zj
+                zw[j, ch] = zj * wj
+        _pairwise_columns(zw, acc, hcr)
+        w0 = fp[F_W0]
+        for ch in range(nch):
+            v_free[ch] = hcr[ch] + w0 * v_pz[ch]
+    if ip[I_CREEP]:                     # s h + sum_k s c_k x_k left to right; x_k = a_k x_k + b_k h
+        for ch in range(nch):
+            hcr[ch] = cscale * v_free[ch]
+        for j in range(ncr):
+            cj, aj, bj = csc[j], ca[j], cb[j]
+            for ch in range(nch):
+                hcr[ch] = hcr[ch] + cj * cx[j, ch]
+                cx[j, ch] = aj * cx[j, ch] + bj * v_free[ch]
+        for ch in range(nch):
+            v_free[ch] = hcr[ch]
+
+
+@njit(cache=True, error_model="numpy")
+def _sense(dd, kk, ip, fp, gb, ga, gz, gnoise, y_V, y_um, clip):
+    """One sample of :meth:`BatchElectronics.read` of the channel displacements ``dd`` (um)."""
+    nch = dd.shape[0]
+    go = gz.shape[0]
+    for ch in range(nch):
+        d = dd[ch]
+        if ip[I_GFILT]:
+            yf = gz[0, ch] + d * gb[0]
+            for i in range(go - 1):
+                gz[i, ch] = gz[i + 1, ch] + d * gb[i + 1] - yf * ga[i + 1]
+            gz[go - 1, ch] = d * gb[go] - yf * ga[go]
+            d = yf
+        if ip[I_GNOISE]:
+            d = d + gnoise[kk, ch]
+        clipped = False
+        if ip[I_CLIP]:
+            dc = min(max(d, -fp[F_RANGE]), fp[F_RANGE])
+            clipped = dc != d
+            d = dc
+        if ip[I_ADC]:
+            code = np.rint(d / fp[F_UMV] / fp[F_ADC_LSB])
+            code_c = min(max(code, fp[F_ADC_LO]), fp[F_ADC_HI])
+            clipped = clipped or (code_c != code)
+            y_V[ch] = code_c * fp[F_ADC_LSB]
+            y_um[ch] = code_c * fp[F_ADC_LSB_UM]
+        else:
+            y_V[ch] = d / fp[F_UMV]
+            y_um[ch] = d
+        clip[ch] = clipped
+
+
+@njit(cache=True, error_model="numpy")
 def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
             cmode, CM, xe, ns, ne, two_dof,
             ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, csc, ca, cb, cx,
@@ -120,12 +227,10 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
             table, last_pz, last_sat, last_clip, k0, orec, pz_rec, yu_rec, cl_rec):
     nb = y.shape[0]
     nch = 3 * nb
-    nd = ip[I_DELAY]
     nr = pr.shape[0]
-    ncr = csc.shape[0]
+    gain = fp[F_GAIN]
     nx = tx.shape[1]
     nf = fx.shape[1]
-    go = gz.shape[0]
     p_out = CM.shape[2] if cmode == 0 else CM.shape[1]
     u = np.empty((nb, 3))
     uu = np.empty(nch)
@@ -149,9 +254,10 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
     ftmp = np.empty(nf)
     d3 = np.empty(3)
     hcr = np.empty(nch)
-    cscale = fp[F_CSCALE]
-    center, lsb, clo, chi = fp[F_CENTER], fp[F_LSB], fp[F_CLO], fp[F_CHI]
-    lo, hi, gain = fp[F_LO], fp[F_HI], fp[F_GAIN]
+    dd = np.empty(nch)
+    yv_ch = np.empty(nch)
+    yu_ch = np.empty(nch)
+    cl_ch = np.zeros(nch, dtype=np.bool_)
     for kk in range(n):
         # -- controller bank (BatchController.feedback), or the open-loop command (cmode -1)
         if cmode < 0:
@@ -190,68 +296,8 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
         for b in range(nb):
             for c in range(3):
                 uu[3 * b + c] = u[b, c]
-        if nd > 0:
-            for ch in range(nch):
-                x_in = uu[ch]
-                uu[ch] = dbuf[0, ch]
-                for j in range(nd - 1):
-                    dbuf[j, ch] = dbuf[j + 1, ch]
-                dbuf[nd - 1, ch] = x_in
-        for ch in range(nch):
-            uc = uu[ch]
-            code = 0.0
-            code_c = 0.0
-            if ip[I_QUANT]:
-                code = np.rint((uc - center) / lsb)
-                code_c = max(code, clo)
-                code_c = min(code_c, chi)
-                u_dac = center + code_c * lsb
-            else:
-                u_dac = uc
-            if ip[I_DACN]:
-                u_dac = u_dac + dacn[kk, ch]
-            u_in = u_dac + ampn[kk, ch] if ip[I_AMPN] else u_dac
-            if ip[I_SAT]:
-                u_cmd = min(max(u_in, lo), hi)
-                s = u_cmd != u_in
-                if ip[I_QUANT] and not ip[I_IMPLIED]:
-                    s = s or (code_c != code)
-            else:
-                u_cmd = u_in
-                s = (code_c != code) if ip[I_QUANT] else False
-            satv[ch] = s
-            vin = gain * u_cmd
-            if ip[I_LAG]:
-                vk = lag_v[ch]
-                lag_v[ch] = vin * fp[F_LAG_1MA] - vk * fp[F_LAG_NA]
-                v = vin + (vk - vin) * fp[F_LAG_M]
-            else:
-                v = vin
-            v_pz[ch] = v
-            v_free[ch] = v
-        if ip[I_HYST]:                      # play operators, then numpy's pairwise sum of z w per channel
-            for j in range(nr):
-                rj, nrj, wj = pr[j], -pr[j], pw[j]
-                for ch in range(nch):
-                    v = v_pz[ch]
-                    zj = max(z[j, ch], v + nrj)
-                    zj = min(zj, v + rj)
-                    z[j, ch] = zj
-                    zw[j, ch] = zj * wj
-            _pairwise_columns(zw, acc, hcr)
-            w0 = fp[F_W0]
-            for ch in range(nch):
-                v_free[ch] = hcr[ch] + w0 * v_pz[ch]
-        if ip[I_CREEP]:                     # s h + sum_k s c_k x_k left to right; x_k = a_k x_k + b_k h
-            for ch in range(nch):
-                hcr[ch] = cscale * v_free[ch]
-            for j in range(ncr):
-                cj, aj, bj = csc[j], ca[j], cb[j]
-                for ch in range(nch):
-                    hcr[ch] = hcr[ch] + cj * cx[j, ch]
-                    cx[j, ch] = aj * cx[j, ch] + bj * v_free[ch]
-            for ch in range(nch):
-                v_free[ch] = hcr[ch]
+        _actuate(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, zw, acc, hcr, csc, ca, cb, cx, v_pz, v_free,
+                 satv)
         # -- twin (BatchTwinStage._advance) and floor
         if tmode == 2:                      # shared [x+; y] = P [x; v]: one gemm, [x, v] @ P.T
             for b in range(nb):
@@ -314,42 +360,23 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
         # -- sensors (BatchElectronics.read)
         for b in range(nb):
             for c in range(3):
+                dd[3 * b + c] = table[b, c]
+        _sense(dd, kk, ip, fp, gb, ga, gz, gnoise, yv_ch, yu_ch, cl_ch)
+        for b in range(nb):
+            for c in range(3):
                 ch = 3 * b + c
-                d = table[b, c]
-                if ip[I_GFILT]:
-                    yf = gz[0, ch] + d * gb[0]
-                    for i in range(go - 1):
-                        gz[i, ch] = gz[i + 1, ch] + d * gb[i + 1] - yf * ga[i + 1]
-                    gz[go - 1, ch] = d * gb[go] - yf * ga[go]
-                    d = yf
-                if ip[I_GNOISE]:
-                    d = d + gnoise[kk, ch]
-                clipped = False
-                if ip[I_CLIP]:
-                    dc = min(max(d, -fp[F_RANGE]), fp[F_RANGE])
-                    clipped = dc != d
-                    d = dc
-                if ip[I_ADC]:
-                    code = np.rint(d / fp[F_UMV] / fp[F_ADC_LSB])
-                    code_c = min(max(code, fp[F_ADC_LO]), fp[F_ADC_HI])
-                    clipped = clipped or (code_c != code)
-                    y[b, c] = code_c * fp[F_ADC_LSB]
-                    y_um = code_c * fp[F_ADC_LSB_UM]
-                else:
-                    y[b, c] = d / fp[F_UMV]
-                    y_um = d
-                if orec:                    # open-loop record: everything after the period
-                    pz_rec[k0 + kk, b, c] = v_pz[ch]
-                    tb[k0 + kk, b, c] = table[b, c]
-                    yv[k0 + kk, b, c] = y[b, c]
-                    yu_rec[k0 + kk, b, c] = y_um
-                    cl_rec[k0 + kk, b, c] = clipped
-                last_clip[b, c] = clipped
+                y[b, c] = yv_ch[ch]
+                last_clip[b, c] = cl_ch[ch]
                 last_pz[b, c] = v_pz[ch]
                 last_sat[b, c] = satv[ch]
                 if rec:
                     sat_rec[k0 + kk, b, c] = satv[ch]
-
+                if orec:                    # open-loop record: everything after the period
+                    pz_rec[k0 + kk, b, c] = v_pz[ch]
+                    tb[k0 + kk, b, c] = table[b, c]
+                    yv[k0 + kk, b, c] = y[b, c]
+                    yu_rec[k0 + kk, b, c] = yu_ch[ch]
+                    cl_rec[k0 + kk, b, c] = cl_ch[ch]
 
 def _f(x):
     return np.ascontiguousarray(x, dtype=float)
@@ -541,3 +568,64 @@ def flicker_cascade(e, gain, bz, ap, z):
                 y = o
             out[i, ch] = y
     return out
+
+
+class StepElectronics:
+    """:meth:`BatchElectronics.actuate` and :meth:`~BatchElectronics.read`, one period per compiled call.
+
+    For stages whose mechanics is stepped outside the compiled loop (the MuJoCo batch): the same
+    arithmetic as the compiled loop on the electronics' own state arrays and noise streams, so the
+    numpy methods and these can be mixed in any order.
+    """
+
+    def __init__(self, el):
+        self.el = el
+        self.ip, self.fp = _params(el)
+        nch = 3 * el.n
+        nr = el._r.size if el._hyst else 0
+        self._zw, self._acc, self._hcr = np.empty((nr, nch)), np.empty((8, nch)), np.empty(nch)
+        self._none1 = np.zeros((1, 0))
+        if el._hyst:
+            self._pr, self._pw = _f(el._r), _f(el._w)
+        else:
+            self._pr = self._pw = np.zeros(0)
+        if el._creep:
+            self._csc, self._ca, self._cb = _f(el._sc_col[:, 0]), _f(el._a_col[:, 0]), _f(el._b_col[:, 0])
+        else:
+            self._csc = self._ca = self._cb = np.zeros(0)
+        gf = el._gauge_filter
+        self._gb, self._ga = (_f(gf._b), _f(gf._a)) if gf is not None else (np.zeros(1), np.zeros(1))
+
+    def _row(self, src):
+        return src.take1()[None, :] if src is not None else self._none1
+
+    def actuate(self, u_V: np.ndarray):
+        """Controller volts ``(B, 3)`` -> ``(None, v_piezo_V, v_free_V, saturated)`` (no ``u_dac_V``)."""
+        el = self.el
+        shape = u_V.shape
+        uu = np.array(u_V, dtype=float).reshape(-1)
+        nch = uu.shape[0]
+        v_pz, v_free, sat = np.empty(nch), np.empty(nch), np.empty(nch, dtype=bool)
+        dbuf = el._delay._buf if el._delay.n else np.zeros((0, nch))
+        z = el._z.T if el._hyst else np.zeros((nch, 0)).T
+        cx = el._x if el._creep else np.zeros((0, nch))
+        _actuate(uu, 0, self.ip, self.fp, dbuf, self._row(el._dac_noise), self._row(el._amp_noise), el._lag._v,
+                 self._pr, self._pw, z, self._zw, self._acc, self._hcr, self._csc, self._ca, self._cb, cx,
+                 v_pz, v_free, sat)
+        return None, v_pz.reshape(shape), v_free.reshape(shape), sat.reshape(shape)
+
+    def read(self, displacement_um: np.ndarray):
+        """True displacements ``(B, 3)`` um -> ``(reading_V, reading_um, clipped)``, or None if the gauge
+        filter has not started (the numpy method starts it).
+        """
+        el = self.el
+        gf = el._gauge_filter
+        if gf is not None and gf._z is None:
+            return None
+        shape = displacement_um.shape
+        dd = np.array(displacement_um, dtype=float).reshape(-1)
+        nch = dd.shape[0]
+        yv, yu, cl = np.empty(nch), np.empty(nch), np.empty(nch, dtype=bool)
+        gz = gf._z if gf is not None else np.zeros((0, nch))
+        _sense(dd, 0, self.ip, self.fp, self._gb, self._ga, gz, self._row(el._gauge_noise), yv, yu, cl)
+        return yv.reshape(shape), yu.reshape(shape), cl.reshape(shape)
