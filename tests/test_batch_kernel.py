@@ -159,3 +159,23 @@ def test_compiled_steps_equal_numpy_electronics(config):
         for f in ("reading_V", "reading_um", "clipped"):
             assert np.array_equal(getattr(sa, f), getattr(sb, f)), (k, f)
     assert np.array_equal(a.hysteresis_state, b.hysteresis_state)
+
+
+def test_mujoco_batch_open_loop_equals_stage_run(plants):
+    """BatchMujocoStage.run rolls each member out as Stage.run does: the same numbers."""
+    from nanosim.plant.batch import BatchMujocoStage
+
+    tm = default_tolerances()
+    models = [sample_model(tm.sample(3, i), tm) for i in (0, 1)]
+    u = 1.0 + np.cumsum(np.random.default_rng(7).standard_normal((2, 1300, 3)) * 0.05, axis=1)   # two chunks
+    with BatchMujocoStage(models, [2, 5], nthread=2) as st:
+        st.step(np.full((2, 3), 0.3))                       # not from home: the run continues a history
+        traces = st.run(u)
+        after = st.step(np.full((2, 3), 0.4))
+    for b, s in enumerate([2, 5]):
+        single = Stage(seed=s, model=models[b])
+        single.step(np.full(3, 0.3))
+        ref = single.run(u[b])
+        for k in ("piezo_V", "saturated", "table_um", "sensor_V", "sensor_um", "clipped"):
+            assert np.array_equal(getattr(ref, k), getattr(traces[b], k)), (b, k)
+        assert np.array_equal(single.step(np.full(3, 0.4)), after[b])

@@ -36,7 +36,7 @@ from nanosim.plant.floor import FloorConfig, floor_model
 from nanosim.plant.mechanics import home_data
 from nanosim.plant.mjcf import custom_numeric, probe_layout, update_position_sensors
 from nanosim.plant.noise import NormalStream, child_seed
-from nanosim.plant.stage import StageConfig, Trace
+from nanosim.plant.stage import StageConfig, Trace, rollout_probes_um
 from nanosim.validation import as_finite_array
 
 __all__ = ["BatchElectronics", "BatchTwinStage", "BatchMujocoStage", "BatchReading", "TwinMatrices"]
@@ -399,6 +399,56 @@ class BatchMujocoStage(_BatchStageBase):
         self._parts = [list(range(self.n))[k::self.nthread] for k in range(self.nthread)]
         self._pool = ThreadPoolExecutor(self.nthread - 1) if self.nthread > 1 else None
         self.reset()
+
+    def run(self, u_V) -> list[Trace]:
+        """Open-loop run of ``(B, N, 3)`` commands (or one ``(N, 3)`` array for every member).
+
+        As :meth:`Stage.run`: the electronics of every period first (open loop), then each
+        member's mechanics in one ``mujoco.rollout`` (members on the threads), the floor and the
+        gauges; member ``b`` equals ``Stage(seed=seeds[b]).run(u[b])`` bit for bit.
+        """
+        u = as_finite_array("u_V", u_V)
+        if u.ndim == 2:
+            u = np.broadcast_to(u, (self.n,) + u.shape)
+        if u.ndim != 3 or u.shape[0] != self.n or u.shape[2] != 3:
+            raise ValueError(f"u_V: expected shape ({self.n}, N, 3) or (N, 3), got {u.shape}")
+        n = u.shape[1]
+        if n == 0:
+            return super().run(u)
+        pz, vf = np.empty((n, self.n, 3)), np.empty((n, self.n, 3))
+        sat = np.empty((n, self.n, 3), dtype=bool)
+        for k in range(n):
+            _, pz[k], vf[k], sat[k] = self.electronics.actuate(np.ascontiguousarray(u[:, k]))
+        forces = np.ascontiguousarray(np.swapaxes(vf, 0, 1))          # (B, N, 3)
+        table = np.empty((self.n, n, 3))
+
+        def roll(idx):
+            for b in idx:
+                table[b] = rollout_probes_um(self.models[b], [self.datas[b]], self.datas[b],      # as Stage.run
+                                             self._force_per_V[b, 0] * forces[b][None], self.substeps,
+                                             self._adr[b], self._bias[b])[0]
+
+        if self._pool is None:
+            roll(range(self.n))
+        else:
+            futures = [self._pool.submit(roll, part) for part in self._parts[1:]]
+            roll(self._parts[0])
+            for f in futures:
+                f.result()
+        tb, yv, yu, cl = (np.empty((n, self.n, 3)) for _ in range(4))
+        for k in range(n):
+            tb[k] = table[:, k]
+            if self.floor is not None and self.floor.active:
+                tb[k] = tb[k] + self.floor.step()
+            sens = self.electronics.read(tb[k])
+            yv[k], yu[k], cl[k] = sens.reading_V, sens.reading_um, sens.clipped
+        t = self.time_s + self.dt_s * np.arange(1, n + 1)
+        self.time_s = float(t[-1])
+        self.table_um = tb[-1].copy()
+        self.last_piezo_V, self.last_saturated, self.last_clipped = pz[-1], sat[-1], cl[-1].astype(bool)
+        return [Trace(t_s=t, u_V=np.array(u[b]), piezo_V=pz[:, b].copy(), saturated=sat[:, b].copy(),
+                      table_um=tb[:, b].copy(), sensor_V=yv[:, b].copy(), sensor_um=yu[:, b].copy(),
+                      clipped=cl[:, b].astype(bool)) for b in range(self.n)]
 
     def _reset_mechanics(self) -> None:
         self.datas = [home_data(m) for m in self.models]

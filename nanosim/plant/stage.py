@@ -173,6 +173,16 @@ class Stage:
 _CHUNK = 1000  # control periods per rollout call (bounds memory: states are per substep)
 
 
+def rollout_probes_um(model, datas, start: mujoco.MjData, forces: np.ndarray, substeps: int,
+                      probe_adr: np.ndarray, bias_m: np.ndarray) -> np.ndarray:
+    """Probe readings (um) of ``(B, N, 3)`` tendon forces held over ``substeps`` (what :meth:`Stage.run` rolls out).
+
+    ``start`` is the initial state and is advanced to the final state of trajectory 0; ``datas``
+    are the rollout's thread-local MjData.
+    """
+    return _rollout(model, datas, start, forces, substeps, probe_adr, bias_m)
+
+
 def _rollout(model, datas, start: mujoco.MjData, forces: np.ndarray, substeps: int,
              probe_adr: np.ndarray, bias_m: np.ndarray) -> np.ndarray:
     """Roll out (B, N, 3) tendon forces held over ``substeps``; return (B, N, 3) probe um.
