@@ -14,6 +14,8 @@ from nanosim import paper as P
 from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
 
+__all__ = ["design_warnings", "pass_count", "write_report"]
+
 # (section, label, paper value, unit, getter on the run's json dicts, acceptance test, band text)
 
 

@@ -17,6 +17,9 @@ from importlib import resources
 
 from nanosim.plant.geometry import HINGE_FAMILIES as GEOMETRY_FAMILIES
 
+__all__ = ["MJCF_DIR", "DEFAULT_MJCF", "FULL_MJCF", "default_mjcf", "load_model", "check_model", "custom_numeric",
+           "probe_layout", "update_position_sensors", "probe_readings_um"]
+
 MJCF_DIR = Path(str(resources.files("nanosim.mjcf")))
 DEFAULT_MJCF = MJCF_DIR / "scene.xml"           # the simulation model (reduced compliance)
 FULL_MJCF = MJCF_DIR / "full" / "scene.xml"     # every notch compliant in bending, out-of-plane and torsion

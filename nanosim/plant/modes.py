@@ -24,6 +24,10 @@ from nanosim import constants as C
 from nanosim.ramps import raised_cosine
 from nanosim.plant.mechanics import home_data, mechanical_matrices
 
+__all__ = ["Mode", "ModalResult", "body_part", "kinetic_energy_shares", "volts_to_force_N", "linearize_fd",
+           "modal_analysis", "constraint_violation_ratio", "table_rotation_urad", "modes_json", "posed_data",
+           "FULL_STROKE_UM"]
+
 CONSTRAINT_RATIO = 0.05
 
 

@@ -12,6 +12,9 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+__all__ = ["MM", "GeomSpec", "HingeSpec", "TendonSpec", "geom_color", "quat_z_to", "capsule_mesh", "geom_specs",
+           "hinge_specs", "tendon_specs", "tendon_segments_mm", "body_poses_mm", "heat_color"]
+
 MM = 1000.0  # metres -> millimetres
 
 # colours (RGB 0..255) by MJCF material name; unknown materials use the MJCF rgba

@@ -25,6 +25,8 @@ from nanosim.viewer.labels import VIEW_DIR, label_positions
 from nanosim.viewer.sim import LiveSim, load_controller
 from nanosim.viewer.waveforms import PRESETS, Waveform
 
+__all__ = ["ViewerApp", "physics_text", "table_displacement_m_cached", "LOOPBACK"]
+
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 AXES = "XYZ"
 HIST = 1500            # plot samples kept (decimated)
