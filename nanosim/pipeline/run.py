@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gc
 import multiprocessing
+import os
 import signal
 import sys
 import time
@@ -21,7 +22,7 @@ from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import CharacterizeConfig, DesignConfig, IdentifyConfig, PipelineConfig
 
 __all__ = ["step_modes", "write_twin_npz", "step_identify", "step_design", "step_characterize", "step_report",
-           "PIPELINE_STEPS", "run_pipeline", "characterize_twin_batch"]
+           "PIPELINE_STEPS", "run_pipeline", "characterize_batch"]
 
 
 def step_modes(out: Path, mjcf=None) -> None:
@@ -89,14 +90,18 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def characterize_twin_batch(controller_npz, out_dir, seed: int, mjcf=None) -> dict:
-    """``nanosim characterize --twin`` on the batch engine (one member, compiled loop).
+def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: bool = False,
+                       workers: int = 1) -> dict:
+    """``nanosim characterize`` (``--twin``) on the batch engine: one member, compiled electronics.
 
     The same experiments, stage, controller and seed as
-    :func:`~nanosim.pipeline.characterize.run_characterize` with ``twin=True``, run by
+    :func:`~nanosim.pipeline.characterize.run_characterize`, each run by
     :func:`~nanosim.experiments.batch_suite.run_experiments_batch` with exact products, which
     gives the single-stage numbers bit for bit (``tests/test_batch.py``, ``tests/test_batch_kernel.py``);
-    writes the same ``metrics.json`` and figures into ``out_dir``.
+    writes the same ``metrics.json`` and figures into ``out_dir``. The MuJoCo member steps with
+    one compiled call for its electronics per period instead of a dozen numpy calls; the twin
+    runs in the compiled loop. ``workers`` experiments run side by side (threads; MuJoCo steps
+    without the GIL).
     """
     from nanosim import constants as C
     from nanosim import experiments
@@ -112,29 +117,33 @@ def characterize_twin_batch(controller_npz, out_dir, seed: int, mjcf=None) -> di
     out = Path(out_dir)
     names = list(experiments.load_builtin())
     ctrl = DiscreteController.from_npz(controller_npz, expected_dt=C.CONTROL_PERIOD_S)
-    factory, base = make_factory(True, mjcf=mjcf)
+    factory, base = make_factory(twin, mjcf=mjcf)
     G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
-    plant = MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=base.model)), model=base.model,
-                        home_um=base.table_um.copy(), static_gain_um_per_V=G0, base_stage=base)
-    seconds, t_last = {}, [time.perf_counter()]
+    plant = MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=base.model)) if twin else None,
+                        model=base.model, home_um=base.table_um.copy(), static_gain_um_per_V=G0, base_stage=base)
 
-    def done(name):
-        t = time.perf_counter()
-        seconds[name], t_last[0] = round(t - t_last[0], 2), t
+    def one(name):
+        t0 = time.perf_counter()
+        (met,), (res,) = run_experiments_batch([name], [plant], ctrl.config, engine="twin" if twin else "mujoco",
+                                               seed=seed, exact=True, nthread=1)
+        return name, met, res, round(time.perf_counter() - t0, 2)
 
-    (metrics,), (results,) = run_experiments_batch(names, [plant], ctrl.config, engine="twin", seed=seed,
-                                                   exact=True, progress=done)
-    if "errors" in metrics:
-        name, msg = next(iter(metrics["errors"].items()))
-        raise RuntimeError(f"characterize --twin: experiment {name!r} failed: {msg}")
+    order = sorted(names, key=lambda n: -experiments.get(n).cost)
+    with ThreadPoolExecutor(max(1, workers)) as pool:
+        done = {name: (met, res, sec) for name, met, res, sec in pool.map(one, order)}
+    metrics, seconds = {}, {}
     ctx = ExperimentContext(factory=factory, controller=DiscreteController(ctrl.config), seed=seed,
                             static_gain_um_per_V=G0, base_stage=base)
-    for name in names:
+    for name in names:                   # registry order, as run_characterize
+        met, res, seconds[name] = done[name]
+        if "errors" in met:
+            raise RuntimeError(f"characterize: experiment {name!r} failed: {met['errors'][name]}")
+        metrics.update(met)
         exp = experiments.get(name)
         if exp.figure is not None and exp.figure_name:
-            save_figure(exp.figure(results[name], ctx), out / exp.figure_name)
+            save_figure(exp.figure(res[name], ctx), out / exp.figure_name)
     metrics["experiment_seconds"] = seconds
-    metrics["plant"] = "linear twin (same electromechanics)"
+    metrics["plant"] = "linear twin (same electromechanics)" if twin else "MuJoCo stage, every effect on"
     metrics["seed"] = seed
     metrics["units"] = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
     write_json(out / A.METRICS_JSON, metrics)
@@ -144,7 +153,7 @@ def characterize_twin_batch(controller_npz, out_dir, seed: int, mjcf=None) -> di
 def _characterize_twin(out: str, seed: int, mjcf) -> float:
     """The twin's experiments (run in a worker process, on the batch engine); returns their wall time [s]."""
     t0 = time.perf_counter()
-    characterize_twin_batch(Path(out) / A.CONTROLLER_NPZ, Path(out) / A.TWIN_DIR, seed, mjcf)
+    characterize_batch(Path(out) / A.CONTROLLER_NPZ, Path(out) / A.TWIN_DIR, seed, mjcf, twin=True)
     return round(time.perf_counter() - t0, 2)
 
 
@@ -160,7 +169,9 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
         "modes": lambda: step_modes(out, cfg.mjcf),
         "identify": lambda: step_identify(out, ident_cfg, cfg.mjcf),
         "design": lambda: step_design(out, cfg.design, mjcf=cfg.mjcf),
-        "characterize": lambda: step_characterize(out, CharacterizeConfig(seed=cfg.seed), mjcf=cfg.mjcf),
+        # the batch engine (one member; same metrics.json as step_characterize, compiled electronics)
+        "characterize": lambda: characterize_batch(out / A.CONTROLLER_NPZ, out, cfg.seed, cfg.mjcf,
+                                                   workers=min(2, os.cpu_count() or 1)),
         "characterize_twin": lambda: step_characterize(out / A.TWIN_DIR, CharacterizeConfig(seed=cfg.seed, twin=True),
                                                        controller_npz=out / A.CONTROLLER_NPZ, mjcf=cfg.mjcf),
         "report": lambda: step_report(out),
