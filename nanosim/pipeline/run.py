@@ -11,6 +11,7 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -90,6 +91,36 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _daemon_map(fn, items, workers: int):
+    """``[fn(x) for x in items]`` on ``workers`` daemon threads: Ctrl-C returns at once (a
+    ``ThreadPoolExecutor`` would wait for the running tasks), as ``run_characterize`` does.
+    """
+    todo, results, errors = list(items), {}, []
+    lock = threading.Lock()
+
+    def work():
+        while not errors:
+            with lock:
+                if not todo:
+                    return
+                i = len(items) - len(todo)
+                x = todo.pop(0)
+            try:
+                results[i] = fn(x)
+            except BaseException as exc:  # noqa: BLE001  (handed to the calling thread)
+                errors.append(exc)
+
+    threads = [threading.Thread(target=work, daemon=True, name=f"characterize-{k}") for k in range(max(1, workers))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        while t.is_alive():
+            t.join(0.2)
+    if errors:
+        raise errors[0]
+    return [results[i] for i in range(len(items))]
+
+
 def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: bool = False,
                        workers: int = 1) -> dict:
     """``nanosim characterize`` (``--twin``) on the batch engine: one member, compiled electronics.
@@ -129,8 +160,7 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
         return name, met, res, round(time.perf_counter() - t0, 2)
 
     order = sorted(names, key=lambda n: -experiments.get(n).cost)
-    with ThreadPoolExecutor(max(1, workers)) as pool:
-        done = {name: (met, res, sec) for name, met, res, sec in pool.map(one, order)}
+    done = {name: (met, res, sec) for name, met, res, sec in _daemon_map(one, order, workers)}
     metrics, seconds = {}, {}
     ctx = ExperimentContext(factory=factory, controller=DiscreteController(ctrl.config), seed=seed,
                             static_gain_um_per_V=G0, base_stage=base)
