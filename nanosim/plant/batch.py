@@ -365,7 +365,7 @@ class BatchMujocoStage(_BatchStageBase):
         thread steps one share). Results do not depend on it.
     compiled : bool
         True (default): the electronics of each period are one compiled call
-        (:class:`nanosim.plant.batch_kernel.StepElectronics`, numba; the same numbers).
+        (:meth:`BatchElectronics.use_compiled_steps`, numba; the same numbers).
 
     Notes
     -----

@@ -135,6 +135,69 @@ def _noise_terms(make_chain, extract, kind: str, seeds) -> _NoiseTerms:
     return _NoiseTerms(make_chain, extract, seeds)
 
 
+class _StepElectronics:
+    """:meth:`BatchElectronics.actuate` and :meth:`~BatchElectronics.read`, one period per compiled call.
+
+    For stages whose mechanics is stepped outside the compiled loop (the MuJoCo batch): the same
+    arithmetic as the compiled loop on the electronics' own state arrays and noise streams, so the
+    numpy methods and these can be mixed in any order.
+    """
+
+    def __init__(self, el):
+        self.el = el
+        self.ip, self.fp = batch_kernel.electronics_params(el)
+        nch = 3 * el.n
+        nr = el._r.size if el._hyst else 0
+        self._zw, self._acc, self._hcr = np.empty((nr, nch)), np.empty((8, nch)), np.empty(nch)
+        self._none1 = np.zeros((1, 0))
+        if el._hyst:
+            self._pr, self._pw = np.ascontiguousarray(el._r), np.ascontiguousarray(el._w)
+        else:
+            self._pr = self._pw = np.zeros(0)
+        if el._creep:
+            self._csc, self._ca, self._cb = (np.ascontiguousarray(c[:, 0]) for c in (el._sc_col, el._a_col, el._b_col))
+        else:
+            self._csc = self._ca = self._cb = np.zeros(0)
+        gf = el._gauge_filter
+        self._gb, self._ga = ((np.ascontiguousarray(gf._b), np.ascontiguousarray(gf._a)) if gf is not None
+                              else (np.zeros(1), np.zeros(1)))
+
+    def _row(self, src):
+        return src.take1()[None, :] if src is not None else self._none1
+
+    def actuate(self, u_V: np.ndarray):
+        """Controller volts ``(B, 3)`` -> ``(None, v_piezo_V, v_free_V, saturated)`` (no ``u_dac_V``)."""
+        el = self.el
+        shape = u_V.shape
+        uu = np.array(u_V, dtype=float).reshape(-1)
+        nch = uu.shape[0]
+        v_pz, v_free, sat = np.empty(nch), np.empty(nch), np.empty(nch, dtype=bool)
+        dbuf = el._delay._buf if el._delay.n else np.zeros((0, nch))
+        z = el._z.T if el._hyst else np.zeros((nch, 0)).T
+        cx = el._x if el._creep else np.zeros((0, nch))
+        batch_kernel.actuate_period(uu, 0, self.ip, self.fp, dbuf, self._row(el._dac_noise), self._row(el._amp_noise),
+                                    el._lag._v, self._pr, self._pw, z, self._zw, self._acc, self._hcr, self._csc,
+                                    self._ca, self._cb, cx, v_pz, v_free, sat)
+        return None, v_pz.reshape(shape), v_free.reshape(shape), sat.reshape(shape)
+
+    def read(self, displacement_um: np.ndarray):
+        """True displacements ``(B, 3)`` um -> ``(reading_V, reading_um, clipped)``, or None if the gauge
+        filter has not started (the numpy method starts it).
+        """
+        el = self.el
+        gf = el._gauge_filter
+        if gf is not None and gf._z is None:
+            return None
+        shape = displacement_um.shape
+        dd = np.array(displacement_um, dtype=float).reshape(-1)
+        nch = dd.shape[0]
+        yv, yu, cl = np.empty(nch), np.empty(nch), np.empty(nch, dtype=bool)
+        gz = gf._z if gf is not None else np.zeros((0, nch))
+        batch_kernel.sense_period(dd, 0, self.ip, self.fp, self._gb, self._ga, gz, self._row(el._gauge_noise),
+                                  yv, yu, cl)
+        return yv.reshape(shape), yu.reshape(shape), cl.reshape(shape)
+
+
 class BatchReading:
     """Gauge/ADC output of a batch: ``reading_V``, ``reading_um``, ``clipped``, each ``(B, 3)``."""
 
@@ -235,7 +298,7 @@ class BatchElectronics:
     def use_compiled_steps(self) -> None:
         """Make :meth:`actuate` and :meth:`read` compiled calls (numba; the same numbers), if numba is there."""
         if batch_kernel.AVAILABLE:
-            self._steps = batch_kernel.StepElectronics(self)
+            self._steps = _StepElectronics(self)
 
     def reset(self) -> None:
         """Virgin piezos, no creep history, every noise stream rewound to its seed."""

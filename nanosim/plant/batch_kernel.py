@@ -34,8 +34,8 @@ except ImportError:                    # pragma: no cover
         """Stand-in decorator without numba."""
         return (lambda f: f) if not args or not callable(args[0]) else args[0]
 
-__all__ = ["AVAILABLE", "BLOCK", "flicker_cascade", "pairwise_sum", "supported", "twin_closed_loop", "twin_open_loop",
-           "StepElectronics"]
+__all__ = ["AVAILABLE", "BLOCK", "actuate_period", "electronics_params", "flicker_cascade", "pairwise_sum",
+           "sense_period", "supported", "twin_closed_loop", "twin_open_loop"]
 
 BLOCK = 4096                # periods per compiled call (bounds the pre-drawn noise rows)
 
@@ -112,7 +112,8 @@ def _matvec(M, x, out):
 
 
 @njit(cache=True, error_model="numpy")
-def _actuate(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, zw, acc, hcr, csc, ca, cb, cx, v_pz, v_free, satv):
+def actuate_period(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, zw, acc, hcr, csc, ca, cb, cx, v_pz, v_free,
+                   satv):
     """One period of :meth:`BatchElectronics.actuate` on the channel commands ``uu`` (delayed in place)."""
     nch = uu.shape[0]
     nd = ip[I_DELAY]
@@ -186,7 +187,7 @@ def _actuate(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, zw, acc, hcr, c
 
 
 @njit(cache=True, error_model="numpy")
-def _sense(dd, kk, ip, fp, gb, ga, gz, gnoise, y_V, y_um, clip):
+def sense_period(dd, kk, ip, fp, gb, ga, gz, gnoise, y_V, y_um, clip):
     """One sample of :meth:`BatchElectronics.read` of the channel displacements ``dd`` (um)."""
     nch = dd.shape[0]
     go = gz.shape[0]
@@ -296,7 +297,7 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
         for b in range(nb):
             for c in range(3):
                 uu[3 * b + c] = u[b, c]
-        _actuate(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, zw, acc, hcr, csc, ca, cb, cx, v_pz, v_free,
+        actuate_period(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, zw, acc, hcr, csc, ca, cb, cx, v_pz, v_free,
                  satv)
         # -- twin (BatchTwinStage._advance) and floor
         if tmode == 2:                      # shared [x+; y] = P [x; v]: one gemm, [x, v] @ P.T
@@ -361,7 +362,7 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
         for b in range(nb):
             for c in range(3):
                 dd[3 * b + c] = table[b, c]
-        _sense(dd, kk, ip, fp, gb, ga, gz, gnoise, yv_ch, yu_ch, cl_ch)
+        sense_period(dd, kk, ip, fp, gb, ga, gz, gnoise, yv_ch, yu_ch, cl_ch)
         for b in range(nb):
             for c in range(3):
                 ch = 3 * b + c
@@ -386,7 +387,7 @@ _EMPTY2 = np.zeros((0, 0))
 _EMPTY3 = np.zeros((1, 0, 0))
 
 
-def _params(el):
+def electronics_params(el):
     """The electronics' switches and scalars as the kernel's (ip, fp) arrays."""
     e = el.electronics
     ip = np.zeros(13, dtype=np.int64)
@@ -492,7 +493,7 @@ def _run(stage, ctrl, ref_V, y_V, record, recs, orecs):
         yv = yv_o
     else:
         pz, yu, cl = e3, e3, np.empty((0, nb, 3), dtype=bool)
-    ip, fp = _params(el)
+    ip, fp = electronics_params(el)
     fp[F_LOOP_UMV] = C.SENSOR_UM_PER_V
     dbuf = el._delay._buf if el._delay.n else np.zeros((0, 3 * nb))
     lag_v = el._lag._v
@@ -569,63 +570,3 @@ def flicker_cascade(e, gain, bz, ap, z):
             out[i, ch] = y
     return out
 
-
-class StepElectronics:
-    """:meth:`BatchElectronics.actuate` and :meth:`~BatchElectronics.read`, one period per compiled call.
-
-    For stages whose mechanics is stepped outside the compiled loop (the MuJoCo batch): the same
-    arithmetic as the compiled loop on the electronics' own state arrays and noise streams, so the
-    numpy methods and these can be mixed in any order.
-    """
-
-    def __init__(self, el):
-        self.el = el
-        self.ip, self.fp = _params(el)
-        nch = 3 * el.n
-        nr = el._r.size if el._hyst else 0
-        self._zw, self._acc, self._hcr = np.empty((nr, nch)), np.empty((8, nch)), np.empty(nch)
-        self._none1 = np.zeros((1, 0))
-        if el._hyst:
-            self._pr, self._pw = _f(el._r), _f(el._w)
-        else:
-            self._pr = self._pw = np.zeros(0)
-        if el._creep:
-            self._csc, self._ca, self._cb = _f(el._sc_col[:, 0]), _f(el._a_col[:, 0]), _f(el._b_col[:, 0])
-        else:
-            self._csc = self._ca = self._cb = np.zeros(0)
-        gf = el._gauge_filter
-        self._gb, self._ga = (_f(gf._b), _f(gf._a)) if gf is not None else (np.zeros(1), np.zeros(1))
-
-    def _row(self, src):
-        return src.take1()[None, :] if src is not None else self._none1
-
-    def actuate(self, u_V: np.ndarray):
-        """Controller volts ``(B, 3)`` -> ``(None, v_piezo_V, v_free_V, saturated)`` (no ``u_dac_V``)."""
-        el = self.el
-        shape = u_V.shape
-        uu = np.array(u_V, dtype=float).reshape(-1)
-        nch = uu.shape[0]
-        v_pz, v_free, sat = np.empty(nch), np.empty(nch), np.empty(nch, dtype=bool)
-        dbuf = el._delay._buf if el._delay.n else np.zeros((0, nch))
-        z = el._z.T if el._hyst else np.zeros((nch, 0)).T
-        cx = el._x if el._creep else np.zeros((0, nch))
-        _actuate(uu, 0, self.ip, self.fp, dbuf, self._row(el._dac_noise), self._row(el._amp_noise), el._lag._v,
-                 self._pr, self._pw, z, self._zw, self._acc, self._hcr, self._csc, self._ca, self._cb, cx,
-                 v_pz, v_free, sat)
-        return None, v_pz.reshape(shape), v_free.reshape(shape), sat.reshape(shape)
-
-    def read(self, displacement_um: np.ndarray):
-        """True displacements ``(B, 3)`` um -> ``(reading_V, reading_um, clipped)``, or None if the gauge
-        filter has not started (the numpy method starts it).
-        """
-        el = self.el
-        gf = el._gauge_filter
-        if gf is not None and gf._z is None:
-            return None
-        shape = displacement_um.shape
-        dd = np.array(displacement_um, dtype=float).reshape(-1)
-        nch = dd.shape[0]
-        yv, yu, cl = np.empty(nch), np.empty(nch), np.empty(nch, dtype=bool)
-        gz = gf._z if gf is not None else np.zeros((0, nch))
-        _sense(dd, 0, self.ip, self.fp, self._gb, self._ga, gz, self._row(el._gauge_noise), yv, yu, cl)
-        return yv.reshape(shape), yu.reshape(shape), cl.reshape(shape)
