@@ -9,14 +9,14 @@ seeds.
 What is shared or batched:
 
 * the modes (seed-independent) are computed once;
-* the designs run on a local process pool;
+* each seed's identification and design run as one task on a local process pool (one
+  seed's fitting and design beside another seed's simulations);
 * the Section 5 experiments run with every seed as one member of a batch
   (:func:`nanosim.experiments.batch_suite.run_experiments_batch`): on MuJoCo
   the members are stepped from a thread pool, on the linear twin the members
   are vectorized, each member with its own controller and seed, bit for bit
   the single-seed numbers;
-* the identification records of a seed already run in parallel (MuJoCo rollout
-  threads), so seeds are identified one after the other.
+* the identification records of a seed run in parallel (MuJoCo rollout threads).
 """
 from __future__ import annotations
 
@@ -74,6 +74,17 @@ def _design_task(seed_dir: str, design_cfg, mjcf) -> str:
 
     step_design(Path(seed_dir), design_cfg, mjcf=mjcf)
     return seed_dir
+
+
+def _identify_design_task(seed_dir: str, ident_cfg, design_cfg, mjcf) -> tuple[str, float, float]:
+    """One seed's identification then design (a pool task); returns the folder and the two durations [s]."""
+    from nanosim.pipeline.run import step_identify
+
+    t0 = time.perf_counter()
+    step_identify(Path(seed_dir), ident_cfg, mjcf)
+    t1 = time.perf_counter()
+    _design_task(seed_dir, design_cfg, mjcf)
+    return seed_dir, round(t1 - t0, 2), round(time.perf_counter() - t1, 2)
 
 
 def _characterize_all(out: Path, seeds, cfg: PipelineConfig, twin: bool, say) -> dict:
@@ -144,23 +155,22 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
         shutil.copytree(first, _seed_dir(out, s), dirs_exist_ok=True)
     timings["modes"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
-    for s in seeds:
-        icfg = IdentifyConfig(seed=s, order=cfg.identify.order, ideal=cfg.identify.ideal,
-                              operating_points_piezo_V=cfg.identify.operating_points_piezo_V)
-        step_identify(_seed_dir(out, s), icfg, cfg.mjcf)
-        say(f"identified seed {s}")
-    timings["identify"] = round(time.perf_counter() - t, 2)
-    t = time.perf_counter()
+    icfgs = [IdentifyConfig(seed=s, order=cfg.identify.order, ideal=cfg.identify.ideal,
+                            operating_points_piezo_V=cfg.identify.operating_points_piezo_V) for s in seeds]
     n = min(len(seeds), workers or cpu_workers())
     if n > 1:
+        # each seed identified then designed in a pool task: one seed's fitting and design run beside
+        # another seed's simulations (the rollouts use threads of their own); the same numbers as in turn
         with ProcessPoolExecutor(n, mp_context=get_context("spawn")) as pool:
-            list(pool.map(_design_task, [str(_seed_dir(out, s)) for s in seeds], [cfg.design] * len(seeds),
-                          [cfg.mjcf] * len(seeds)))
+            for s, (_, ti, td) in zip(seeds, pool.map(_identify_design_task, [str(_seed_dir(out, s)) for s in seeds],
+                                                       icfgs, [cfg.design] * len(seeds), [cfg.mjcf] * len(seeds))):
+                say(f"identified ({ti:.0f} s) and designed ({td:.0f} s) seed {s}")
     else:
-        for s in seeds:
+        for s, icfg in zip(seeds, icfgs):
+            step_identify(_seed_dir(out, s), icfg, cfg.mjcf)
             _design_task(str(_seed_dir(out, s)), cfg.design, cfg.mjcf)
-    timings["design"] = round(time.perf_counter() - t, 2)
-    say(f"designed {len(seeds)} controllers")
+            say(f"identified and designed seed {s}")
+    timings["identify_and_design"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
     _characterize_all(out, seeds, cfg, twin=False, say=say)
     timings["characterize"] = round(time.perf_counter() - t, 2)
