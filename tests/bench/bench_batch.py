@@ -106,41 +106,13 @@ def mujoco_rt(nthread, members=MJ_B, sim_s=MJ_SIM_S) -> float:
         return members * sim_s / (time.perf_counter() - t0)
 
 
-def mujoco_serial_fraction(members=MJ_B, sim_s=MJ_SIM_S) -> float:
-    """CPU share of one thread's closed loop spent outside the members' mechanics (electronics, controller,
-    hand-off): the serial part of Amdahl's law, in thread CPU time (independent of the machine's load).
-    The mechanics' share is timed on its own: ``mj_step`` over a period and the end-of-period probes."""
-    import mujoco
-
-    from nanosim.plant.mechanics import home_data
-    from nanosim.plant.mjcf import update_position_sensors
-
-    model = load_model()
-    ctrl = controller_29(modal_analysis(model).static_gain_um_per_V)
-    n = int(sim_s * 4000)
-    with BatchMujocoStage(model, list(range(members)), nthread=1) as stage:
-        t0 = time.thread_time()
-        run_closed_loop_batch(stage, BatchController(ctrl, n=members, exact=False), _reference(n), settle=False)
-        total = time.thread_time() - t0
-        substeps = stage.substeps
-    datas = [home_data(model) for _ in range(members)]
-    t0 = time.thread_time()
-    for _ in range(n):
-        for d in datas:
-            mujoco.mj_step(model, d, substeps)
-            update_position_sensors(model, d)
-    mechanics = time.thread_time() - t0
-    return max(0.0, (total - mechanics) / total)
-
-
 def test_mujoco_two_threads_vs_one(benchmark):
     benchmark.pedantic(mujoco_rt, args=(2,), rounds=1, iterations=1)
     one = mujoco_rt(1)
     two = mujoco_rt(2)
-    s = mujoco_serial_fraction()
     print(f"\nMuJoCo batch, B = {MJ_B}: 1 thread {one:.2f}x real time, 2 threads {two:.2f}x; ratio {two / one:.2f} "
-          f"(target >= 1.8); serial fraction {s:.3f}, Amdahl bound on 2 idle cores {1 / (s + (1 - s) / 2):.2f}x")
-    benchmark.extra_info.update(one_thread_rt=one, two_threads_rt=two, ratio=two / one, serial_fraction=s)
+          "(target >= 1.8)")
+    benchmark.extra_info.update(one_thread_rt=one, two_threads_rt=two, ratio=two / one)
 
 
 def test_twin_batch_aggregate(benchmark):
