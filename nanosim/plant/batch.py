@@ -163,11 +163,7 @@ class _BatchStageBase:
 
     def run(self, u_V) -> list[Trace]:
         """Open-loop run of ``(B, N, 3)`` commands (or one ``(N, 3)`` array for every member)."""
-        u = as_finite_array("u_V", u_V)
-        if u.ndim == 2:
-            u = np.broadcast_to(u, (self.n,) + u.shape)
-        if u.ndim != 3 or u.shape[0] != self.n or u.shape[2] != 3:
-            raise ValueError(f"u_V: expected shape ({self.n}, N, 3) or (N, 3), got {u.shape}")
+        u = _member_commands(u_V, self.n)
         n = u.shape[1]
         pz, sat, tb, yv, yu, cl = (np.empty((n, self.n, 3)) for _ in range(6))
         t0 = self.time_s
@@ -341,6 +337,16 @@ class BatchTwinStage(_BatchStageBase):
         return np.zeros_like(clipped)                    # as TwinStage.run
 
 
+def _member_commands(u_V, n_members: int) -> np.ndarray:
+    """``(B, N, 3)`` commands from ``(B, N, 3)`` or one ``(N, 3)`` array for every member."""
+    u = as_finite_array("u_V", u_V)
+    if u.ndim == 2:
+        u = np.broadcast_to(u, (n_members,) + u.shape)
+    if u.ndim != 3 or u.shape[0] != n_members or u.shape[2] != 3:
+        raise ValueError(f"u_V: expected shape ({n_members}, N, 3) or (N, 3), got {u.shape}")
+    return u
+
+
 def _step_members(models, datas, forces, substeps, adrs, biases, out, idx) -> None:
     for i in idx:
         d = datas[i]
@@ -407,11 +413,7 @@ class BatchMujocoStage(_BatchStageBase):
         member's mechanics in one ``mujoco.rollout`` (members on the threads), the floor and the
         gauges; member ``b`` equals ``Stage(seed=seeds[b]).run(u[b])`` bit for bit.
         """
-        u = as_finite_array("u_V", u_V)
-        if u.ndim == 2:
-            u = np.broadcast_to(u, (self.n,) + u.shape)
-        if u.ndim != 3 or u.shape[0] != self.n or u.shape[2] != 3:
-            raise ValueError(f"u_V: expected shape ({self.n}, N, 3) or (N, 3), got {u.shape}")
+        u = _member_commands(u_V, self.n)
         n = u.shape[1]
         if n == 0:
             return super().run(u)
