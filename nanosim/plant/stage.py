@@ -23,11 +23,13 @@ from nanosim.plant.mechanics import home_data
 from nanosim.plant.mjcf import custom_numeric, load_model, probe_layout, update_position_sensors
 from nanosim.plant.piezo import PiezoConfig
 
+__all__ = ["StageConfig", "Trace", "Stage", "rollout_probes_um", "run_open_loop_batch", "STAGE_ELECTRONICS",
+           "STAGE_ELECTRONICS_V1"]
 
 # The bench electronics: every default of ElectronicsConfig (sourced values in
 # nanosim.constants), with the 16-bit DAC spanning the command range [-1, 7.5] V
-# (LSB 0.13 mV). The DAC's flicker-noise level is the one noise level fitted to
-# the paper (open-loop probe sigma at rest 11.4 nm, Sec. 5), see tests/test_stage.py.
+# (LSB 0.13 mV). The DAC's white-noise level is the one noise level fitted to
+# the paper (open-loop probe sigma at rest 11.4 nm, Sec. 5): tools/fit_dac_noise.py.
 _DAC_SPAN = dict(dac_full_scale_V=(C.COMMAND_RANGE_V[1] - C.COMMAND_RANGE_V[0]) / 2,
                  dac_center_V=(C.COMMAND_RANGE_V[1] + C.COMMAND_RANGE_V[0]) / 2)
 STAGE_ELECTRONICS = ElectronicsConfig(**_DAC_SPAN)
