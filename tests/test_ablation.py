@@ -9,7 +9,7 @@ import pytest
 from nanosim.pipeline.ablation import AblationPlant, ablation_rows, markdown_table, run_row
 from nanosim.pipeline.config import DesignConfig
 from nanosim.pipeline.design import run_design
-from nanosim.pipeline.predictions import ABLATION_JSON, report_blocks
+from nanosim.pipeline.predictions import ABLATION_JSON, is_paper_design, report_blocks
 
 MODEL = "tests/data/identified_seed0.npz"
 
@@ -45,3 +45,12 @@ def test_report_shows_the_ablation_table(tmp_path):
     tables = [b for b in blocks if b[0] == "table"]
     assert any(t[2][0][0] == "paper" and t[2][1][:2] == ["v2", "every element on"] for t in tables)
     assert "| v2 | every element on | 150.0 |" in markdown_table(res)
+
+
+def test_paper_design_is_recognized_from_design_json(paper_controller):
+    """The validation rows call the closed loop a prediction only for the paper's set-up."""
+    des = json.loads((paper_controller.parent / "design.json").read_text())
+    assert is_paper_design(des)
+    assert not is_paper_design(dict(des, reduced_order=14))
+    assert not is_paper_design(dict(des, damping_loop={"zeta_added": 0.1}))
+    assert not is_paper_design(dict(des, architecture="lqg"))
