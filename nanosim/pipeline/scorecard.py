@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from nanosim.fileio import write_json, write_text
+from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
 
 __all__ = ["Metric", "METRICS", "ACCEPTANCE", "DEFAULT_RULE", "flatten_metrics", "robustness_metrics", "scorecard",
@@ -72,16 +73,16 @@ class Metric:
 
 
 METRICS: tuple[Metric, ...] = (
-    Metric("bandwidth_S_hz", "S bandwidth, reference to error (measured)", "Hz", True, 32.0),
+    Metric("bandwidth_S_hz", "S bandwidth, reference to error (measured)", "Hz", True, PAPER["bwS"]),
     Metric("bandwidth_S_feedback_hz", "S bandwidth of the feedback loop (measured, PRBS at the reading)", "Hz",
-           True, 32.0),
+           True, PAPER["bwS"]),
     Metric("bandwidth_T_hz", "T bandwidth (measured)", "Hz", True),
-    Metric("step_settling_ms", "2 um step, 2 % settling", "ms", False, 11.0),
+    Metric("step_settling_ms", "2 um step, 2 % settling", "ms", False, PAPER["settle"]),
     Metric("step_overshoot_percent", "2 um step, overshoot", "%", False, 10.0),
     Metric("step_rise_ms", "2 um step, rise 10-90 %", "ms", False),
-    Metric("sigma_table_nm", "closed-loop sigma, true table X", "nm", False, 1.89),
+    Metric("sigma_table_nm", "closed-loop sigma, true table X", "nm", False, PAPER["sig_c"]),
     Metric("sigma_sensor_nm", "closed-loop sigma, sensor X", "nm", False),
-    Metric("contour_mean_1000_nm", "contour error, mean at 1000 um/s", "nm", False, 40.0),
+    Metric("contour_mean_1000_nm", "contour error, mean at 1000 um/s", "nm", False, PAPER["contour_mean"]),
     Metric("contour_max_1000_nm", "contour error, max at 1000 um/s", "nm", False),
     Metric("tracking_rms_sine_20hz_nm", "tracking error rms, 20 Hz sine", "nm", False),
     Metric("small_steps_max_error_nm", "10 nm staircase, largest plateau error", "nm", False),

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from nanosim.paper import PAPER
 from nanosim.plots.style import new_figure
 
 __all__ = ["fig_compare_loops", "fig_compare_step", "fig_compare_contour", "fig_compare_psd", "compare_figures"]
@@ -50,7 +51,7 @@ def fig_compare_step(steps: dict, step_um: float = 2.0):
     for i, (name, (t, y)) in enumerate(steps.items()):
         ax.plot(1e3 * t, y, color=_color(i), label=name, lw=1.2)
     ax.axhspan(step_um * 0.98, step_um * 1.02, color="0.85", zorder=0, label="2 % band")
-    ax.axvline(11.0, color="0.4", ls="--", lw=0.8, label="11 ms (paper)")
+    ax.axvline(PAPER["settle"], color="0.4", ls="--", lw=0.8, label=f"{PAPER['settle']:g} ms (paper)")
     ax.set(xlabel="time after the step [ms]", ylabel="X reading [um]", title="2 um step", xlim=(-2, 60))
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
@@ -64,7 +65,8 @@ def fig_compare_contour(contours: dict):
     for i, (name, e) in enumerate(contours.items()):
         t = np.arange(len(e)) / 4.0
         ax.plot(t, e, color=_color(i), lw=1.0, label=f"{name} (mean {np.mean(e):.0f} nm)")
-    ax.axhline(40.0, color="0.4", ls="--", lw=0.8, label="40 nm (paper's mean)")
+    ax.axhline(PAPER["contour_mean"], color="0.4", ls="--", lw=0.8,
+               label=f"{PAPER['contour_mean']:g} nm (paper's mean)")
     ax.set(xlabel="time while moving [ms]", ylabel="contour error [nm]", title="Contouring at 1000 um/s")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
