@@ -1,6 +1,7 @@
 """``nanosim characterize``: run the registered experiments, write metrics.json and their figures."""
 from __future__ import annotations
 
+import functools
 import json
 import os
 import sys
@@ -22,7 +23,7 @@ from nanosim.plant.modes import modal_analysis
 from nanosim.plant.stage import Stage, StageConfig
 from nanosim.plant.twin import TwinStage
 
-__all__ = ["make_factory", "run_characterize"]
+__all__ = ["make_factory", "run_characterize", "experiment_task", "write_task_metrics"]
 
 
 def make_factory(twin: bool, mjcf=None, config: StageConfig | None = None):
@@ -149,4 +150,63 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
     metrics["seed"] = cfg.seed
     metrics["units"] = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
     write_json(out / A.METRICS_JSON, metrics)
+    return metrics
+
+
+@functools.lru_cache(maxsize=4)
+def _member_setup(twin: bool, mjcf):
+    """The nominal stage, factory, static gain and batch member of a process (built once per process)."""
+    from nanosim.experiments.batch_suite import MemberPlant
+
+    factory, base = make_factory(twin, mjcf=mjcf)
+    G0 = modal_analysis(base.model).static_gain_um_per_V
+    plant = MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=base.model)) if twin else None,
+                        model=base.model, home_um=base.table_um.copy(), static_gain_um_per_V=G0, base_stage=base)
+    return factory, base, G0, plant
+
+
+def experiment_task(controller_npz, out_dir, name: str, seed: int, mjcf=None, twin: bool = False) -> tuple:
+    """One registered experiment on the batch engine (one member, exact products), as a pool task.
+
+    Runs ``name`` exactly as :func:`nanosim.pipeline.run.characterize_batch` does (same stage,
+    controller, seed and code path, so the same numbers bit for bit), saves its figure into
+    ``out_dir`` and returns ``(name, metrics, seconds)``; :func:`write_task_metrics` merges the
+    tasks' metrics into ``metrics.json``. Experiments are independent, so the tasks of one or
+    several runs can be spread over worker processes in any order.
+    """
+    from nanosim.experiments.batch_suite import run_experiments_batch
+
+    t0 = time.perf_counter()
+    experiments.load_builtin()
+    exp = experiments.get(name)
+    ctrl = DiscreteController.from_npz(controller_npz, expected_dt=C.CONTROL_PERIOD_S)
+    factory, base, G0, plant = _member_setup(bool(twin), None if mjcf is None else str(mjcf))
+    (met,), (res,) = run_experiments_batch([name], [plant], ctrl.config, engine="twin" if twin else "mujoco",
+                                           seed=seed, exact=True, nthread=1)
+    seconds = round(time.perf_counter() - t0, 2)
+    if "errors" in met:
+        raise RuntimeError(f"characterize: experiment {name!r} failed: {met['errors'][name]}")
+    if exp.figure is not None and exp.figure_name:
+        ctx = ExperimentContext(factory=factory, controller=DiscreteController(ctrl.config), seed=seed,
+                                static_gain_um_per_V=G0, base_stage=base)
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        save_figure(exp.figure(res[name], ctx), Path(out_dir) / exp.figure_name)
+    return name, met, seconds
+
+
+def write_task_metrics(out_dir, parts, seed: int, twin: bool = False) -> dict:
+    """``metrics.json`` from :func:`experiment_task` results ``parts`` (``name -> (metrics, seconds)``).
+
+    Merged in registry order, with the keys :func:`nanosim.pipeline.run.characterize_batch` writes.
+    """
+    metrics: dict = {}
+    for name in experiments.load_builtin():
+        if name not in parts:
+            raise ValueError(f"parts: expected a result for every registered experiment, {name!r} is missing")
+        metrics.update(parts[name][0])
+    metrics["experiment_seconds"] = {name: parts[name][1] for name in experiments.load_builtin()}
+    metrics["plant"] = "linear twin (same electromechanics)" if twin else "MuJoCo stage, every effect on"
+    metrics["seed"] = seed
+    metrics["units"] = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
+    write_json(Path(out_dir) / A.METRICS_JSON, metrics)
     return metrics

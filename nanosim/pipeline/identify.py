@@ -59,7 +59,7 @@ def identify_json(result: IdentifiedStage, extra: dict | None = None) -> dict:
 
 
 def run_identify(out_dir, config: IdentifyConfig | None = None, *, model=None, twin=None,
-                 progress=None) -> IdentifiedStage:
+                 progress=None, on_model=None) -> IdentifiedStage:
     """``nanosim identify``: experiments, models, figures, ``model.npz``, ``identify.json``.
 
     Parameters
@@ -74,6 +74,10 @@ def run_identify(out_dir, config: IdentifyConfig | None = None, *, model=None, t
         Drawn beside the identified model in Fig. 5.
     progress : callable, optional
         ``progress(message)`` after each step.
+    on_model : callable, optional
+        ``on_model(path)`` as soon as ``model.npz`` (the first operating point's model, the one
+        the design uses) is written, before the other operating points are identified: the
+        pipeline starts the design there.
     """
     cfg = config or IdentifyConfig()
     ops = tuple(cfg.operating_points_piezo_V)
@@ -84,8 +88,11 @@ def run_identify(out_dir, config: IdentifyConfig | None = None, *, model=None, t
         results.append(identify_stage(s, model=model, progress=progress))
         if progress:
             progress(f"identified at {op:g} V")
+        if len(results) == 1:
+            path = save_model(out / A.MODEL_NPZ, results[0])
+            if on_model is not None:
+                on_model(path)
     main = results[0]
-    save_model(out / A.MODEL_NPZ, main)
     extra = {}
     if len(results) > 1:
         save_model(out / A.model_at_npz(ops[1]), results[1])

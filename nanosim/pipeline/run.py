@@ -13,7 +13,6 @@ import signal
 import sys
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,8 @@ from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import CharacterizeConfig, DesignConfig, IdentifyConfig, PipelineConfig
 
 __all__ = ["step_modes", "write_twin_npz", "step_identify", "step_design", "step_characterize", "step_report",
-           "PIPELINE_STEPS", "run_pipeline", "characterize_batch"]
+           "PIPELINE_STEPS", "run_pipeline", "characterize_batch", "modes_task", "design_task", "spawn_pool",
+           "stop_pool", "wait_result", "experiment_jobs", "experiments_names"]
 
 
 def step_modes(out: Path, mjcf=None) -> None:
@@ -50,8 +50,11 @@ def write_twin_npz(out: Path, mjcf=None) -> Path:
                      units=np.array("controller V -> sensor V (5 um/V); ideal MuJoCo stage, linear piezo"))
 
 
-def step_identify(out: Path, config: IdentifyConfig, mjcf=None, progress=None) -> None:
-    """Identify the stage (``model.npz``, ``identify.json``, Figs. 4-7) into ``out``."""
+def step_identify(out: Path, config: IdentifyConfig, mjcf=None, progress=None, on_model=None) -> None:
+    """Identify the stage (``model.npz``, ``identify.json``, Figs. 4-7) into ``out``.
+
+    ``on_model(path)`` is called once ``model.npz`` is written (see :func:`run_identify`).
+    """
     from nanosim.pipeline.identify import run_identify
     from nanosim.plant.linearize import linearize
     from nanosim.plant.mjcf import load_model
@@ -59,7 +62,7 @@ def step_identify(out: Path, config: IdentifyConfig, mjcf=None, progress=None) -
 
     model = load_model(mjcf)
     twin = linearize(Stage(config=StageConfig.ideal(), model=model))
-    run_identify(out, config, model=model, twin=twin, progress=progress)
+    run_identify(out, config, model=model, twin=twin, progress=progress, on_model=on_model)
 
 
 def step_design(out: Path, config: DesignConfig, model_npz=None, mjcf=None) -> None:
@@ -180,80 +183,141 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
     return metrics
 
 
-def _characterize_twin(out: str, seed: int, mjcf) -> float:
-    """The twin's experiments (run in a worker process, on the batch engine); returns their wall time [s]."""
+def modes_task(out: str, mjcf) -> float:
+    """``step_modes`` as a pool task; returns its wall time [s]."""
     t0 = time.perf_counter()
-    characterize_batch(Path(out) / A.CONTROLLER_NPZ, Path(out) / A.TWIN_DIR, seed, mjcf, twin=True)
+    step_modes(Path(out), mjcf)
     return round(time.perf_counter() - t0, 2)
 
 
+def design_task(out: str, config: DesignConfig, mjcf) -> float:
+    """``step_design`` as a pool task; returns its wall time [s]."""
+    t0 = time.perf_counter()
+    step_design(Path(out), config, mjcf=mjcf)
+    return round(time.perf_counter() - t0, 2)
+
+
+def spawn_pool(workers: int):
+    """A ``spawn`` process pool whose workers leave Ctrl-C to the main process."""
+    return multiprocessing.get_context("spawn").Pool(max(1, workers), initializer=_ignore_sigint)
+
+
+def stop_pool(pool) -> None:
+    """Stop a pool's workers now (Ctrl-C or a failed task): do not wait for their running tasks."""
+    pool.terminate()
+    pool.join()
+    gc.collect()          # release its semaphores now (the CLI may leave through os._exit)
+
+
+def wait_result(job):
+    """``job.get()`` of an ``AsyncResult``, waiting in short slices so that Ctrl-C is seen at once."""
+    while not job.ready():
+        job.wait(0.2)
+    return job.get()
+
+
+def experiment_jobs(pool, run_dir: Path, seed: int, mjcf, *, twin_too: bool = True) -> list:
+    """Submit every registered experiment of one run folder as a pool task, the longest first.
+
+    One task per experiment and plant (MuJoCo, and the linear twin with ``twin_too``), each
+    :func:`~nanosim.pipeline.characterize.experiment_task` (the batch engine, one member, the
+    numbers of ``characterize_batch``). Returns ``[(twin, name, job), ...]``.
+    """
+    from nanosim import experiments
+    from nanosim.pipeline.characterize import experiment_task
+
+    names = list(experiments.load_builtin())
+    todo = [(experiments.get(n).cost * (0.3 if tw else 1.0), tw, n) for tw in ((False, True) if twin_too else (False,))
+            for n in names]
+    todo.sort(key=lambda t: -t[0])                # the twin runs about 3x faster than MuJoCo
+    ctrl = str(Path(run_dir) / A.CONTROLLER_NPZ)
+    mj = None if mjcf is None else str(mjcf)
+    return [(tw, n, pool.apply_async(experiment_task, (ctrl, str(Path(run_dir) / (A.TWIN_DIR if tw else "")), n,
+                                                       seed, mj, tw))) for _, tw, n in todo]
+
+
+def experiments_names() -> list:
+    """The registered experiments, in registry order."""
+    from nanosim import experiments
+
+    return list(experiments.load_builtin())
+
+
 def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: bool = True) -> dict:
-    """Run every step into ``out`` (normally a staging folder); returns ``pipeline.json``'s content."""
+    """Run every step into ``out`` (normally a staging folder); returns ``pipeline.json``'s content.
+
+    Independent work runs side by side on two worker processes: the modes beside the
+    identification, the design as soon as ``model.npz`` exists (beside the second operating
+    point's identification), then every experiment of the MuJoCo stage and of the linear twin
+    as one task each, the longest first. No experiment is shortened, and each runs the code and
+    seed it runs alone (:func:`~nanosim.pipeline.characterize.experiment_task`), so the numbers
+    do not depend on the schedule.
+    """
     cfg = config or PipelineConfig()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     ident_cfg = cfg.identify if cfg.identify.seed == cfg.seed else IdentifyConfig(
         seed=cfg.seed, order=cfg.identify.order, ideal=cfg.identify.ideal,
         operating_points_piezo_V=cfg.identify.operating_points_piezo_V)
-    steps = {
-        "modes": lambda: step_modes(out, cfg.mjcf),
-        "identify": lambda: step_identify(out, ident_cfg, cfg.mjcf),
-        "design": lambda: step_design(out, cfg.design, mjcf=cfg.mjcf),
-        # the batch engine (one member; same metrics.json as step_characterize, compiled electronics)
-        "characterize": lambda: characterize_batch(out / A.CONTROLLER_NPZ, out, cfg.seed, cfg.mjcf,
-                                                   workers=min(2, os.cpu_count() or 1)),
-        "characterize_twin": lambda: step_characterize(out / A.TWIN_DIR, CharacterizeConfig(seed=cfg.seed, twin=True),
-                                                       controller_npz=out / A.CONTROLLER_NPZ, mjcf=cfg.mjcf),
-        "report": lambda: step_report(out),
-    }
     names = [n for n in PIPELINE_STEPS if n != "characterize_twin" or cfg.characterize_twin_too]
+    twin_too = "characterize_twin" in names
     timings: dict[str, float] = {}
     bar = None
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=len(names), desc="nanosim pipeline", unit="step", file=sys.stderr)
 
-    def timed(name):
-        if bar:
-            bar.set_postfix_str(f"running {name}")
-        t0 = time.perf_counter()
-        steps[name]()
-        timings[name] = round(time.perf_counter() - t0, 2)
+    def done(name, seconds, running=None):
+        timings[name] = seconds
         if bar:
             bar.update(1)
+            if running:
+                bar.set_postfix_str(f"running {running}")
 
-    # Independent steps run side by side (no experiment is shortened): the modes beside the
-    # identification (a thread), the twin's experiments beside the MuJoCo ones (a process of its
-    # own, so the two do not compete for the GIL; results do not depend on it).
     t_start = time.perf_counter()
-    with ThreadPoolExecutor(1) as side:
-        modes = side.submit(timed, "modes")
-        timed("identify")
-        modes.result()
-    timed("design")
-    twin = pool = None
-    if "characterize_twin" in names:
-        pool = multiprocessing.get_context("spawn").Pool(1, initializer=_ignore_sigint)
-        twin = pool.apply_async(_characterize_twin, (str(out), cfg.seed, None if cfg.mjcf is None else str(cfg.mjcf)))
+    mj = None if cfg.mjcf is None else str(cfg.mjcf)
+    pool = spawn_pool(min(2, os.cpu_count() or 1))
     try:
-        timed("characterize")
-        if twin is not None:
-            timings["characterize_twin"] = twin.get()
-            if bar:
-                bar.update(1)
+        jobs = {"modes": pool.apply_async(modes_task, (str(out), mj))}
+
+        def start_design(_path=None):
+            jobs["design"] = pool.apply_async(design_task, (str(out), cfg.design, mj))
+
+        if bar:
+            bar.set_postfix_str("running identify, modes")
+        t0 = time.perf_counter()
+        step_identify(out, ident_cfg, cfg.mjcf, on_model=start_design)
+        done("identify", round(time.perf_counter() - t0, 2), "modes, design")
+        if "design" not in jobs:
+            start_design()
+        done("modes", wait_result(jobs["modes"]), "design")
+        done("design", wait_result(jobs["design"]), "characterize")
+        t0 = time.perf_counter()
+        parts: dict = {False: {}, True: {}}
+        left = {False: len(experiments_names()), True: len(experiments_names()) if twin_too else 0}
+        for tw, _, job in experiment_jobs(pool, out, cfg.seed, mj, twin_too=twin_too):
+            name, met, sec = wait_result(job)
+            parts[tw][name] = (met, sec)
+            left[tw] -= 1
+            if left[tw] == 0:
+                done("characterize_twin" if tw else "characterize", round(time.perf_counter() - t0, 2))
     except BaseException:
-        if pool is not None:     # Ctrl-C or a failed step: stop the twin's experiments now, do not wait for them
-            pool.terminate()
-            pool.join()
-            pool = twin = None   # release its semaphores now (the CLI may leave through os._exit)
-            gc.collect()
+        stop_pool(pool)       # Ctrl-C or a failed step: stop the workers now, do not wait for them
         raise
-    if pool is not None:
-        pool.close()
-        pool.join()
+    pool.close()
+    pool.join()
+    from nanosim.pipeline.characterize import write_task_metrics
+
+    write_task_metrics(out, parts[False], cfg.seed)
+    if twin_too:
+        write_task_metrics(out / A.TWIN_DIR, parts[True], cfg.seed, twin=True)
     timings["overlapped_wall"] = round(time.perf_counter() - t_start, 2)
     write_json(out / A.PIPELINE_JSON, {"stage_seconds": timings, "seed": cfg.seed})   # the report reads it
-    timed("report")
+    if bar:
+        bar.set_postfix_str("running report")
+    t0 = time.perf_counter()
+    step_report(out)
+    done("report", round(time.perf_counter() - t0, 2))
     if bar:
         bar.close()
     result = {"stage_seconds": timings, "seed": cfg.seed}
