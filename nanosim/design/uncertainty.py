@@ -177,6 +177,25 @@ class ModalPlant:
             else:
                 self.s = lam.astype(complex)
 
+    def mode_kind(self) -> np.ndarray:
+        """Per eigenvalue: 1 for a structural pair member (complex, ``zeta < MODE_ZETA_MAX``,
+        ``f_n <= MODE_MAX_HZ``), 2 for a real pole that the frequency scale moves, 0 for a
+        pole the uncertainty set leaves alone (``s = 0``, a discrete pole on the negative
+        real axis, a filter pair).
+        """
+        kind = np.zeros(self.lam.size, int)
+        for k, sk in enumerate(self.s):
+            if not np.isfinite(sk) or sk == 0:
+                continue
+            if self.discrete and self.lam[k].real < 0 and abs(self.lam[k].imag) <= 1e-12 * abs(self.lam[k]):
+                continue
+            if abs(sk.imag) > 1e-12 * abs(sk):
+                if -sk.real / abs(sk) < MODE_ZETA_MAX and abs(sk) <= 2 * math.pi * MODE_MAX_HZ:
+                    kind[k] = 1
+            else:
+                kind[k] = 2
+        return kind
+
     def poles(self, fs: float, zs: float, keep_dc_gain: bool = True):
         """Perturbed poles (``z`` or ``s``) and the residue factors that keep each mode's DC gain.
 
@@ -187,16 +206,12 @@ class ModalPlant:
         conjugate partner) stay where they are.
         """
         s_new = self.s.copy()
+        kind = self.mode_kind()
         for k, sk in enumerate(self.s):
-            if not np.isfinite(sk) or sk == 0:
-                continue
-            if self.discrete and self.lam[k].real < 0 and abs(self.lam[k].imag) <= 1e-12 * abs(self.lam[k]):
-                continue
-            if abs(sk.imag) > 1e-12 * abs(sk) and (-sk.real / abs(sk) >= MODE_ZETA_MAX
-                                                   or abs(sk) > 2 * math.pi * MODE_MAX_HZ):
+            if kind[k] == 0:
                 continue
             wn = abs(sk)
-            if abs(sk.imag) > 1e-12 * wn:
+            if kind[k] == 1:
                 zeta = -sk.real / wn
                 zn, wn2 = zeta * zs, wn * fs
                 if zn < 1:
