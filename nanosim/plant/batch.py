@@ -22,6 +22,7 @@ matches exactly.
 """
 from __future__ import annotations
 
+import itertools
 import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple, Sequence
@@ -347,6 +348,16 @@ def _member_commands(u_V, n_members: int) -> np.ndarray:
     return u
 
 
+def _step_claimed(models, datas, forces, substeps, adrs, biases, out, claims, n) -> None:
+    """Step members as they are claimed from the shared counter ``claims`` (``next`` is atomic under
+    the GIL) until all ``n`` are taken: a thread that is behind (a busy core) takes fewer.
+    """
+    for i in claims:
+        if i >= n:
+            return
+        _step_members(models, datas, forces, substeps, adrs, biases, out, (i,))
+
+
 def _step_members(models, datas, forces, substeps, adrs, biases, out, idx) -> None:
     for i in idx:
         d = datas[i]
@@ -463,8 +474,11 @@ class BatchMujocoStage(_BatchStageBase):
         if self._pool is None:
             _step_members(*args, range(self.n))
         else:
-            futures = [self._pool.submit(_step_members, *args, part) for part in self._parts[1:]]
-            _step_members(*args, self._parts[0])            # the calling thread steps its share
+            # members are claimed one at a time by the threads (the calling thread too), so a thread
+            # held up by a busy core takes fewer; each member's numbers do not depend on its thread
+            claims = itertools.count()
+            futures = [self._pool.submit(_step_claimed, *args, claims, self.n) for _ in self._parts[1:]]
+            _step_claimed(*args, claims, self.n)
             for f in futures:
                 f.result()
         self.table_um = out
