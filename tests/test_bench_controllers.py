@@ -26,6 +26,7 @@ from nanosim.design.architectures.common import (  # noqa: E402
     loop_at_a_time_alpha,
 )
 from nanosim.design.lti import load_state_space_npz  # noqa: E402
+from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES  # noqa: E402
 
 MODEL = Path(__file__).parent / "data" / "identified_seed0.npz"
 README = Path(__file__).parents[1] / "README.md"
@@ -55,11 +56,20 @@ def test_every_bench_design_is_stable_with_the_identified_model(designs, model):
     for name, d in designs.items():
         Ke, Ky = d.split()
         assert d.dt == DT_S and d.n_error == 3, name
-        rho = closed_loop_spectral_radius(model, Ke, Ky, delay_samples=1)
+        rho = closed_loop_spectral_radius(model, Ke, Ky, delay_samples=IDENTIFIED_DELAY_SAMPLES)
         assert rho < 1.0, (name, rho)
         assert d.tuning_rule and isinstance(d.parameters, dict)
         # the exported controller itself is stable (no growing state at rest) except the slow integrators
         assert d.config.spectral_radius < 1.0, name
+
+
+def test_every_bench_design_sees_the_loop_as_run_the_identified_model_as_is(designs):
+    """``nanosim identify``'s model already holds the loop's delay: no design adds a sample to it."""
+    from nanosim.design.architectures.common import LOOP_DELAY_SAMPLES
+    assert IDENTIFIED_DELAY_SAMPLES == 0 and LOOP_DELAY_SAMPLES == IDENTIFIED_DELAY_SAMPLES
+    for name, d in designs.items():
+        assert d.parameters["loop_delay_samples"] == 0, name
+        assert d.parameters.get("design_model_delay_samples", 0) == 0, name
 
 
 def test_pi_notch_meets_its_disk_margin_rule_and_the_rule_is_tight(designs, model):
@@ -69,14 +79,14 @@ def test_pi_notch_meets_its_disk_margin_rule_and_the_rule_is_tight(designs, mode
     p = d.parameters
     f = np.unique(np.concatenate([np.logspace(-1, np.log10(1999.0), 1500),
                                   *[fm * np.linspace(0.9, 1.1, 201) for fm in p["notch_hz"]]]))
-    rep = disk_margins(model, d.split()[0], f, delay_samples=1)
+    rep = disk_margins(model, d.split()[0], f, delay_samples=IDENTIFIED_DELAY_SAMPLES)
     lat = [m.alpha for m in rep.input_loop_at_a_time + rep.output_loop_at_a_time]
     assert min(lat) >= 0.5 * (1 - 2e-3), lat            # the rule, on a refined independent grid
     G0_inv = np.linalg.inv(ct.dcgain(model))
     K_more = pi_notch_controller(G0_inv, 1.05 * p["proportional_gain"], p["pi_zero_hz"], p["notch_hz"],
                                  p["notch_zeta"])
     Gf = freqresp_z(model, f)
-    assert loop_at_a_time_alpha(Gf, freqresp_z(K_more, f), 1, DT_S, f) < 0.5   # 5 % more gain breaks it
+    assert loop_at_a_time_alpha(Gf, freqresp_z(K_more, f), IDENTIFIED_DELAY_SAMPLES, DT_S, f) < 0.5  # 5 % more gain
 
 
 def test_hinf_damped_uses_the_pipeline_defaults():

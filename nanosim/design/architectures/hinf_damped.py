@@ -4,7 +4,8 @@ Tuning rule (README "Controller"): DC-matched balanced truncation to 14 states; 
 band-limited velocity feedback ``Ky`` adding ``zeta = 0.1`` to the first lightly damped
 mode (400 Hz low-pass, :func:`~nanosim.design.damping.damping_loop`); the paper's
 mixed-sensitivity weights on the damped plant ``(I - G Ky)^-1 G``; ``u = K e + Ky y``.
-With ``delay_aware`` (default) the design model carries the loop's delay: ``z^-d`` is,
+With ``delay_aware`` (default) the design model carries ``delay_samples`` (0 for a model of
+``nanosim identify``, which is the loop as run; ``d`` for a model from record rows): ``z^-d`` is,
 under the Tustin map the controller is discretized with, the all-pass
 ``((1 - s dt/2)/(1 + s dt/2))^d`` at every input, so the H-infinity problem sees the
 loop as it is run. If the pipeline's damping loop is unstable with that delay, the first
@@ -35,12 +36,16 @@ FALLBACK_ZETAS = (0.05, 0.03, 0.02)
 FALLBACK_LOWPASS_HZ = (500.0, 600.0, 800.0, 1000.0)
 TUNING_RULE = ("14-state model, damping loop adding zeta 0.1 to the first mode (400 Hz low-pass; less damping, then "
                "a higher low-pass, if that inner loop is unstable with the loop's delay), optimal H-infinity with the "
-               "paper's weights on the damped plant; design model with the loop's one-sample delay")
+               "paper's weights on the damped plant; design model = the identified model, the loop as run")
 
 
 def tustin_delay(n: int, delay_samples: int, dt: float):
     """``((1 - s dt/2)/(1 + s dt/2))^d I_n``: the Tustin image of ``z^-d`` (continuous, ``n`` channels)."""
     import control as ct
+    if delay_samples < 0:
+        raise ValueError(f"delay_samples: expected an integer >= 0, got {delay_samples!r}")
+    if delay_samples == 0:
+        return ct.ss(np.zeros((0, 0)), np.zeros((0, n)), np.zeros((n, 0)), np.eye(n))
     one = ct.ss(ct.tf([-dt / 2, 1.0], [dt / 2, 1.0]))
     d = one
     for _ in range(delay_samples - 1):

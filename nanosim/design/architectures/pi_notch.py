@@ -14,8 +14,8 @@ IEEE TCST 15(5), 2007)::
 Tuning rule (MIGO, Astrom & Hagglund, *Advanced PID Control*, 2006: the largest
 integral gain under a robustness constraint): over notch widths ``zeta_n`` and PI
 corners ``f_z`` on a grid, the largest ``k`` (bisection) with a loop-at-a-time disk
-margin of at least 0.5 at every plant input and output (identified model, the loop's
-one-sample delay, nominally stable); the pair with the largest integral gain
+margin of at least 0.5 at every plant input and output (identified model = the loop
+as run, nominally stable); the pair with the largest integral gain
 ``k f_z`` [Hz] wins.
 """
 from __future__ import annotations
@@ -47,7 +47,7 @@ from nanosim.design.architectures.common import (
 __all__ = ["design_pi_notch", "pi_notch_controller", "TUNING_RULE"]
 
 TUNING_RULE = ("largest integral gain k*f_z over notch widths and PI corners with a loop-at-a-time disk margin "
-               ">= 0.5 at every plant input and output (identified model with the one-sample delay)")
+               ">= 0.5 at every plant input and output (the identified model, the loop as run)")
 NOTCH_ZETAS = (0.3, 0.5, 0.7)
 PI_ZERO_HZ = (10.0, 20.0, 40.0, 70.0, 120.0, 200.0)
 

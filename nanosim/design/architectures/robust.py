@@ -9,8 +9,8 @@ set (every modal frequency +-3 %, damping down to x0.5)::
     K_inf: robust stabilization of the normalized coprime factors of Gs (gamma = 1.1 gamma_min)
     K = -W1 K_inf          (u = K e; the formula's K_inf is positive feedback)
 
-``Gloop`` is the identified model with the loop's delay, in continuous time by inverse
-Tustin (``z^-1`` becomes the all-pass ``(1 - s dt/2)/(1 + s dt/2)``); ``K`` goes back to
+``Gloop`` is the identified model (the loop as run; times ``z^-d`` with ``delay_samples = d``),
+in continuous time by inverse Tustin (``z^-1`` becomes the all-pass ``(1 - s dt/2)/(1 + s dt/2)``); ``K`` goes back to
 4 kHz with Tustin, so the discrete loop is the Tustin image of the designed one. The
 plant is first reduced to ``reduced_order`` states (DC-matched balanced truncation).
 
