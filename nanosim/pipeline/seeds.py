@@ -6,16 +6,15 @@ as ``nanosim pipeline --seed s``, its own ``report.md``), ``DIR/seeds.json`` and
 the number of seeds inside the band, and the mean and worst value over the
 seeds.
 
-What is shared or batched:
+What is shared or scheduled together:
 
 * the modes (seed-independent) are computed once;
-* each seed's identification and design run as one task on a local process pool (one
-  seed's fitting and design beside another seed's simulations);
-* the Section 5 experiments run with every seed as one member of a batch
-  (:func:`nanosim.experiments.batch_suite.run_experiments_batch`): on MuJoCo
-  the members are stepped from a thread pool, on the linear twin the members
-  are vectorized, each member with its own controller and seed, bit for bit
-  the single-seed numbers;
+* every seed's identification, design and Section 5 experiments (one task per experiment
+  and plant, each on the batch engine with one member) are tasks on one pool of worker
+  processes, a seed's design submitted when its identification is done and its experiments
+  when its design is done: the two cores stay busy across seeds (one seed's design beside
+  another's simulations), and each task runs the code and seed of the single-seed pipeline,
+  so every seed's numbers are those of ``nanosim pipeline --seed s``;
 * the identification records of a seed run in parallel (MuJoCo rollout threads).
 """
 from __future__ import annotations
@@ -25,13 +24,11 @@ import math
 import shutil
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 
-from nanosim.fileio import save_figure, write_json, write_text
+from nanosim.fileio import write_json, write_text
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import IdentifyConfig, PipelineConfig
 
@@ -69,73 +66,91 @@ def _seed_dir(out: Path, seed: int) -> Path:
     return out / f"seed_{seed}"
 
 
-def _design_task(seed_dir: str, design_cfg, mjcf) -> str:
-    from nanosim.pipeline.run import step_design
-
-    step_design(Path(seed_dir), design_cfg, mjcf=mjcf)
-    return seed_dir
-
-
-def _identify_design_task(seed_dir: str, ident_cfg, design_cfg, mjcf) -> tuple[str, float, float]:
-    """One seed's identification then design (a pool task); returns the folder and the two durations [s]."""
+def _identify_task(seed_dir: str, ident_cfg, mjcf) -> float:
+    """One seed's identification (a pool task); returns its wall time [s]."""
     from nanosim.pipeline.run import step_identify
 
     t0 = time.perf_counter()
     step_identify(Path(seed_dir), ident_cfg, mjcf)
-    t1 = time.perf_counter()
-    _design_task(seed_dir, design_cfg, mjcf)
-    return seed_dir, round(t1 - t0, 2), round(time.perf_counter() - t1, 2)
+    return round(time.perf_counter() - t0, 2)
 
 
-def _characterize_all(out: Path, seeds, cfg: PipelineConfig, twin: bool, say) -> dict:
-    """Every registered experiment, all seeds as members of one batch; metrics.json and figures per seed."""
-    from nanosim import constants as C
-    from nanosim import experiments
-    from nanosim.design.controller import DiscreteController
-    from nanosim.experiments.batch_suite import MemberPlant, run_experiments_batch
-    from nanosim.experiments.registry import ExperimentContext
-    from nanosim.plant.linearize import linearize
-    from nanosim.plant.mjcf import load_model
-    from nanosim.plant.modes import modal_analysis
-    from nanosim.plant.stage import Stage, StageConfig
+def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
+    """Every seed's identification, design and experiments as tasks on one process pool.
 
-    names = experiments.load_builtin()
-    model = load_model(cfg.mjcf)
-    base = Stage(model=model)
-    G0 = modal_analysis(model).static_gain_um_per_V
-    tw = linearize(Stage(config=StageConfig.ideal(), model=model)) if twin else None
-    plant = MemberPlant(twin=tw, model=model, home_um=base.table_um.copy(), static_gain_um_per_V=G0, base_stage=base)
-    ctrls = [DiscreteController.from_npz(_seed_dir(out, s) / A.CONTROLLER_NPZ, expected_dt=C.CONTROL_PERIOD_S).config
-             for s in seeds]
-    t0 = time.perf_counter()
-    done = []
-    metrics, results = run_experiments_batch(names, [plant] * len(seeds), ctrls, engine="twin" if twin else "mujoco",
-                                             seed=list(seeds), exact=True, progress=lambda n: done.append(n))
-    seconds = round(time.perf_counter() - t0, 2)
-    say(f"{'twin' if twin else 'MuJoCo'} experiments of {len(seeds)} seeds in {seconds:.1f} s")
-    for b, s in enumerate(seeds):
-        folder = _seed_dir(out, s) / (A.TWIN_DIR if twin else "")
-        folder.mkdir(parents=True, exist_ok=True)
-        m = dict(metrics[b])
-        for name in names:
-            exp = experiments.get(name)
-            if name in results[b] and exp.figure is not None and exp.figure_name:
-                ctx = ExperimentContext(factory=None, controller=DiscreteController(ctrls[b]), seed=s,
-                                        static_gain_um_per_V=G0, base_stage=base)
-                save_figure(exp.figure(results[b][name], ctx), folder / exp.figure_name)
-        m["experiment_seconds"] = {"all_seeds_batched": seconds}
-        m["plant"] = "linear twin (same electromechanics)" if twin else "MuJoCo stage, every effect on"
-        m["seed"] = s
-        m["units"] = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
-        write_json(folder / A.METRICS_JSON, m)
-    return {"seconds": seconds}
+    A seed's design is submitted when its identification is done, its experiments (one task
+    per experiment and plant, the longest first) when its design is done, so the workers stay
+    busy across seeds: one seed's design runs beside another seed's simulations. Each task runs
+    the code and seed of the single-seed pipeline, so every seed's numbers are those of
+    ``nanosim pipeline --seed s``. Returns the summed task seconds per kind.
+    """
+    from nanosim.pipeline.characterize import write_task_metrics
+    from nanosim.pipeline.run import (design_task, experiment_jobs, experiments_names, spawn_pool, stop_pool,
+                                      wait_result)
+
+    mj = None if cfg.mjcf is None else str(cfg.mjcf)
+    n_exp = len(experiments_names()) * (2 if cfg.characterize_twin_too else 1)
+    pool = spawn_pool(workers)
+    totals = {"identify": 0.0, "design": 0.0, "characterize": 0.0, "characterize_twin": 0.0}
+    try:
+        pending = []
+
+        def submit(kind, seed, fn, args):
+            job = pool.apply_async(fn, args)
+            pending.append((kind, seed, job))
+
+        for s in seeds:
+            icfg = IdentifyConfig(seed=s, order=cfg.identify.order, ideal=cfg.identify.ideal,
+                                  operating_points_piezo_V=cfg.identify.operating_points_piezo_V)
+            submit("identify", s, _identify_task, (str(_seed_dir(out, s)), icfg, mj))
+        parts = {s: {False: {}, True: {}} for s in seeds}
+        left = {s: n_exp for s in seeds}
+        while pending:
+            ready = [p for p in pending if p[2].ready()]
+            if not ready:
+                pending[0][2].wait(0.2)
+                continue
+            for item in ready:
+                pending.remove(item)
+                kind, s, job = item
+                result = wait_result(job)
+                if kind == "identify":
+                    totals["identify"] += result
+                    submit("design", s, design_task, (str(_seed_dir(out, s)), cfg.design, mj))
+                elif kind == "design":
+                    totals["design"] += result
+                    say(f"seed {s}: identified and designed")
+                    for tw, _, j in experiment_jobs(pool, _seed_dir(out, s), s, mj,
+                                                    twin_too=cfg.characterize_twin_too):
+                        pending.append(("twin" if tw else "mujoco", s, j))
+                else:
+                    name, met, sec = result
+                    tw = kind == "twin"
+                    parts[s][tw][name] = (met, sec)
+                    totals["characterize_twin" if tw else "characterize"] += sec
+                    left[s] -= 1
+                    if left[s] == 0:
+                        write_task_metrics(_seed_dir(out, s), parts[s][False], s)
+                        if cfg.characterize_twin_too:
+                            write_task_metrics(_seed_dir(out, s) / A.TWIN_DIR, parts[s][True], s, twin=True)
+                        say(f"seed {s}: experiments done")
+    except BaseException:
+        stop_pool(pool)        # Ctrl-C or a failed task: stop the workers now
+        raise
+    pool.close()
+    pool.join()
+    return {k: round(v, 2) for k, v in totals.items()}
 
 
 def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, progress: bool = True,
                        workers: int | None = None) -> dict:
-    """Run the pipeline for every seed into ``out`` (normally a staging folder); returns ``seeds.json``."""
+    """Run the pipeline for every seed into ``out`` (normally a staging folder); returns ``seeds.json``.
+
+    The modes are computed once; every seed's identification, design and experiments are
+    tasks on one pool of worker processes (:func:`_schedule`).
+    """
     from nanosim.pipeline.report import pass_count, write_report
-    from nanosim.pipeline.run import step_identify, step_modes
+    from nanosim.pipeline.run import step_modes
     from nanosim.pipeline.scaleout import cpu_workers
 
     cfg = config or PipelineConfig()
@@ -155,39 +170,20 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
         shutil.copytree(first, _seed_dir(out, s), dirs_exist_ok=True)
     timings["modes"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
-    icfgs = [IdentifyConfig(seed=s, order=cfg.identify.order, ideal=cfg.identify.ideal,
-                            operating_points_piezo_V=cfg.identify.operating_points_piezo_V) for s in seeds]
-    n = min(len(seeds), workers or cpu_workers())
-    if n > 1:
-        # each seed identified then designed in a pool task: one seed's fitting and design run beside
-        # another seed's simulations (the rollouts use threads of their own); the same numbers as in turn
-        with ProcessPoolExecutor(n, mp_context=get_context("spawn")) as pool:
-            for s, (_, ti, td) in zip(seeds, pool.map(_identify_design_task, [str(_seed_dir(out, s)) for s in seeds],
-                                                       icfgs, [cfg.design] * len(seeds), [cfg.mjcf] * len(seeds))):
-                say(f"identified ({ti:.0f} s) and designed ({td:.0f} s) seed {s}")
-    else:
-        for s, icfg in zip(seeds, icfgs):
-            step_identify(_seed_dir(out, s), icfg, cfg.mjcf)
-            _design_task(str(_seed_dir(out, s)), cfg.design, cfg.mjcf)
-            say(f"identified and designed seed {s}")
-    timings["identify_and_design"] = round(time.perf_counter() - t, 2)
-    t = time.perf_counter()
-    _characterize_all(out, seeds, cfg, twin=False, say=say)
-    timings["characterize"] = round(time.perf_counter() - t, 2)
-    if cfg.characterize_twin_too:
-        t = time.perf_counter()
-        _characterize_all(out, seeds, cfg, twin=True, say=say)
-        timings["characterize_twin"] = round(time.perf_counter() - t, 2)
+    task_seconds = _schedule(out, seeds, cfg, max(1, min(2 * len(seeds), workers or cpu_workers())), say)
+    timings["identify_design_characterize"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
     per_seed = {}
     for s in seeds:
         d = _seed_dir(out, s)
-        write_json(d / A.PIPELINE_JSON, {"stage_seconds": {"shared_with_other_seeds": timings}, "seed": s})
+        write_json(d / A.PIPELINE_JSON, {"stage_seconds": {"shared_with_other_seeds": timings,
+                                                           "task_seconds_all_seeds": task_seconds}, "seed": s})
         write_report(d)
         ok, nb = pass_count(d)
         per_seed[s] = {"in_band": ok, "banded": nb, "metrics": _key_metrics(d)}
     timings["report"] = round(time.perf_counter() - t, 2)
     doc = _summary(seeds, per_seed, timings)
+    doc["task_seconds_all_seeds"] = task_seconds
     write_json(out / SEEDS_JSON, doc)
     write_json(out / A.PIPELINE_JSON, {"stage_seconds": timings, "seeds": list(seeds)})
     write_text(out / A.REPORT_MD, _report(doc))
