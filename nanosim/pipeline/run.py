@@ -203,10 +203,13 @@ def spawn_pool(workers: int):
 
 
 def stop_pool(pool) -> None:
-    """Stop a pool's workers now (Ctrl-C or a failed task): do not wait for their running tasks."""
+    """Stop a pool's workers now (Ctrl-C or a failed task): do not wait for their running tasks.
+
+    The caller drops its references to the pool and its jobs, then calls ``gc.collect()``, so the
+    pool's semaphores are released before the CLI leaves (it may leave through ``os._exit``).
+    """
     pool.terminate()
     pool.join()
-    gc.collect()          # release its semaphores now (the CLI may leave through os._exit)
 
 
 def wait_result(job):
@@ -303,6 +306,8 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
                 done("characterize_twin" if tw else "characterize", round(time.perf_counter() - t0, 2))
     except BaseException:
         stop_pool(pool)       # Ctrl-C or a failed step: stop the workers now, do not wait for them
+        pool = jobs = job = start_design = None
+        gc.collect()
         raise
     pool.close()
     pool.join()

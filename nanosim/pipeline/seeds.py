@@ -19,6 +19,7 @@ What is shared or scheduled together:
 """
 from __future__ import annotations
 
+import gc
 import json
 import math
 import shutil
@@ -136,6 +137,8 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
                         say(f"seed {s}: experiments done")
     except BaseException:
         stop_pool(pool)        # Ctrl-C or a failed task: stop the workers now
+        pool = pending = job = item = ready = submit = None
+        gc.collect()           # release the pool's semaphores now
         raise
     pool.close()
     pool.join()
