@@ -123,6 +123,25 @@ def test_compiled_batch_of_one_equals_single_stage(plants, two_dof):
     assert got.saturated.any()          # the comparison covers saturation
 
 
+def test_compiled_loop_across_noise_chunks_equals_numpy_path_and_single_stage(plants):
+    # 1234 open-loop periods first, so the 4096-row noise chunks end inside the closed loop's calls
+    p = plants[0]
+    c = _controller(p["G0"], True, 20.0)
+    ref = np.tile(_ref(), (13, 1))[:9000]
+    got = {}
+    for compiled in (True, False):
+        st = BatchTwinStage([p["twin"]] * 2, [4, 5], home_um=p["home"], floor_models=[p["floor"]] * 2)
+        st.run(np.full((2, 1234, 3), 0.3))
+        got[compiled] = run_closed_loop_batch(st, BatchController([c, c]), ref, settle_s=0.05, compiled=compiled)
+    single = TwinStage(p["twin"], seed=5, home_um=p["home"], floor_model=p["floor"])
+    single.run(np.full((1234, 3), 0.3))
+    one = run_closed_loop(single, DiscreteController(c), ref, settle_s=0.05)
+    for k in FIELDS:
+        for b in range(2):
+            assert np.array_equal(getattr(got[True][b], k), getattr(got[False][b], k)), (b, k)
+        assert np.array_equal(getattr(got[True][1], k), getattr(one, k)), k
+
+
 @pytest.mark.parametrize("config", [StageConfig(), StageConfig.v1()], ids=["v2", "v1"])
 def test_compiled_open_loop_equals_single_stage(plants, config):
     p = plants[0]

@@ -72,6 +72,22 @@ class _NoiseTerms:
             filled += k
         return out
 
+    def rows_left(self) -> int:
+        """Rows left in the drawn chunk (a new chunk is drawn if none is)."""
+        if self._i == len(self._buf):
+            self._refill()
+        return len(self._buf) - self._i
+
+    def rows(self, n: int) -> np.ndarray:
+        """The next ``n <= rows_left()`` rows as a view of the chunk (the numbers of :meth:`take`, no copy);
+        valid until the next chunk is drawn.
+        """
+        if n > len(self._buf) - self._i:
+            raise ValueError(f"n: expected at most {len(self._buf) - self._i} rows (rows_left), got {n}")
+        out = self._buf[self._i:self._i + n]
+        self._i += n
+        return out
+
     def take1(self) -> np.ndarray:
         """Next noise term of every channel, shape ``(3 B,)``."""
         if self._i == len(self._buf):
@@ -107,22 +123,34 @@ class _StackedNoise(_NoiseTerms):
                 self._fl_ap = np.array([ap for _, ap in fl._sec])
                 self._fl_z = np.zeros((len(fl._sec), 3 * len(self._seeds)))
 
+    def _gather(self, stream: str, k: int) -> np.ndarray:
+        """``(k, 3 B)``: ``k`` rows of every member's ``stream``, members side by side (``np.concatenate``'s)."""
+        out = np.empty((k, 3 * len(self._chains)))
+        for b, ch in enumerate(self._chains):
+            out[:, 3 * b:3 * b + 3] = getattr(ch, stream).take(k)
+        return out
+
     def _refill(self) -> None:
+        # the arithmetic of the chains, 0 + sigma w (+ flicker), in place: no new chunk-sized arrays
         k = _NOISE_CHUNK
         ch0 = self._chains[0]
-        if self._kind == "gauge":
-            total = self._sigma * np.concatenate([ch._noise.take(k) for ch in self._chains], axis=1)
-        elif self._kind == "amp":
-            total = self._sigma * np.concatenate([ch._amp_noise.take(k) for ch in self._chains], axis=1)
+        if self._kind in ("gauge", "amp"):
+            total = self._gather("_noise" if self._kind == "gauge" else "_amp_noise", k)
+            np.multiply(self._sigma, total, out=total)
         else:
             total = None
             if self._sigma > 0.0:
-                total = self._sigma * np.concatenate([ch._noise.take(k) for ch in self._chains], axis=1)
+                total = self._gather("_noise", k)
+                np.multiply(self._sigma, total, out=total)
             if ch0._flicker is not None:
-                e = np.concatenate([ch._flicker_noise.take(k) for ch in self._chains], axis=1)
+                e = self._gather("_flicker_noise", k)
                 f = batch_kernel.flicker_cascade(e, self._fl_gain, self._fl_bz, self._fl_ap, self._fl_z)
-                total = f if total is None else total + f
-        self._buf = 0.0 + total
+                if total is None:
+                    total = f
+                else:
+                    np.add(total, f, out=total)
+        np.add(0.0, total, out=total)
+        self._buf = total
         self._i = 0
 
 

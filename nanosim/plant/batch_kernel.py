@@ -526,11 +526,15 @@ def _run(stage, ctrl, ref_V, y_V, record, recs, orecs):
     table = stage.table_um.copy()
     last_pz, last_sat, last_clip = np.empty((nb, 3)), np.empty((nb, 3), dtype=bool), np.empty((nb, 3), dtype=bool)
     empty_noise = np.zeros((0, 0))
-    for k0 in range(0, n, BLOCK):
-        m = min(BLOCK, n - k0)
-        dacn = el._dac_noise.take(m) if el._dac_noise is not None else empty_noise
-        ampn = el._amp_noise.take(m) if el._amp_noise is not None else empty_noise
-        gn = el._gauge_noise.take(m) if el._gauge_noise is not None else empty_noise
+    sources = [src for src in (el._dac_noise, el._amp_noise, el._gauge_noise) if src is not None]
+    k0 = 0
+    while k0 < n:
+        # at most the rows left in every noise chunk, so the rows are views of the chunks (no copy);
+        # a period's numbers do not depend on where a call ends
+        m = min([BLOCK, n - k0] + [src.rows_left() for src in sources])
+        dacn = el._dac_noise.rows(m) if el._dac_noise is not None else empty_noise
+        ampn = el._amp_noise.rows(m) if el._amp_noise is not None else empty_noise
+        gn = el._gauge_noise.rows(m) if el._gauge_noise is not None else empty_noise
         facc = fl.take_accel(m) if fmode else np.zeros((0, nb, 3))
         _kernel(m, ref_V[k0:k0 + m], y, record, yv, tb, us, sat,
                 cmode, CM, xe, ns, ne, two_dof,
@@ -539,6 +543,7 @@ def _run(stage, ctrl, ref_V, y_V, record, recs, orecs):
                 fmode, FA, FB, FC, FP, fx, facc,
                 gb, ga, gz, gn,
                 table, last_pz, last_sat, last_clip, k0, orec, pz, yu, cl)
+        k0 += m
     if el._hyst:
         el._z[...] = z.T
     if fmode:
