@@ -101,3 +101,76 @@ def test_design_config_exports_lqg_by_default_and_the_paper_design_stays_hinf():
     assert DesignConfig.paper().architecture == "hinf"
     with pytest.raises(ValueError, match="architecture"):
         DesignConfig(architecture="pid")
+
+
+def test_default_lqg_vertex_check_records_the_known_corner(model):
+    """Brute force over STAGE_UNCERTAINTY (96 plants): every plant without the extra sample is stable;
+    the default misses at modes +3 % with one extra sample (the 462/472 Hz group's upper crossing,
+    module docstring), by under 3 % in spectral radius; the recorded worst is the loop closed by hand."""
+    from nanosim.design.architectures.common import uncertainty_vertex_check
+    from nanosim.design.uncertainty import ModalPlant, UncertaintySet
+    d = design_lqg(model)
+    Ke, Ky = d.split()
+    v = d.parameters["uncertainty_vertices"]
+    assert v["n_checked"] == 2 ** 6 + 32
+    assert 1.0 < v["worst_spectral_radius"] < 1.03, v
+    assert v["worst"]["freq_scale"] == pytest.approx(1.03) and v["worst"]["extra_delay_samples"] == 1
+    w = v["worst"]
+    P = ModalPlant(model, DT_S).state_space(w["freq_scale"], w["damping_scale"], np.array(w["input_gain"]),
+                                            w["extra_delay_samples"])
+    assert closed_loop_spectral_radius(P, Ke, Ky, 0) == pytest.approx(v["worst_spectral_radius"], rel=1e-9)
+    no_extra = uncertainty_vertex_check(model, Ke, Ky, UncertaintySet(extra_delay_samples_range=(0, 0)))
+    assert no_extra["all_stable"] and no_extra["worst_spectral_radius"] < 1.0, no_extra
+
+
+def test_robust_lqg_is_stable_over_the_whole_uncertainty_set_with_the_disk_margin(model):
+    """The robust rule on the identified seed-0 model: all 96 plants stable, the small-signal gain
+    (1.75 x) stable, multiloop disk margin >= 0.45 on an independent grid, bandwidth >= 32 Hz."""
+    from nanosim.design.architectures.lqg import SMALL_SIGNAL_GAIN
+    from nanosim.design.uncertainty import ModalPlant
+    d = design_lqg(model, robust=True)
+    p = d.parameters
+    assert p["rule"] == "robust" and p["design_freq_scale"] == pytest.approx(1.03)
+    v = p["uncertainty_vertices"]
+    assert v["all_stable"] and v["n_unstable"] == 0 and v["worst_spectral_radius"] < 1.0, v
+    Ke, Ky = d.split()
+    Pup = ModalPlant(model, DT_S).state_space(1.0, 1.0, SMALL_SIGNAL_GAIN, 0)
+    assert closed_loop_spectral_radius(Pup, Ke, Ky, 0) < 1.0
+    f = np.unique(np.concatenate([np.geomspace(0.1, 1999.0, 900), np.linspace(440, 520, 400)]))
+    r = loop_response(freqresp_z(model, f), f, Ke, Ky, delay_samples=0)
+    assert disk_margin_summary(r)["multiloop"] >= 0.45
+    assert p["predicted_bandwidth_S_hz"] >= 32.0
+
+
+def test_shifted_modes_moves_only_the_modes_above_300_hz_and_keeps_each_dc_gain(model):
+    """Lightly damped pairs (zeta < 0.3) between 300 Hz and 1 kHz at 1.03 x, damping kept; every other pole
+    (the 176/178/245 Hz modes, real and filter poles) where it was; the static gain unchanged."""
+    from nanosim.design.architectures.lqg import shifted_modes
+    Gs = shifted_modes(model, 1.03, 300.0)
+
+    def poles_s(G):
+        return np.log(np.linalg.eigvals(np.asarray(G.A)).astype(complex)) / DT_S
+    s0 = poles_s(model)
+    w0 = np.abs(s0)
+    moved = (np.abs(s0.imag) > 1e-6 * w0) & (w0 > 2 * np.pi * 300) & (w0 <= 2 * np.pi * 1000) & (-s0.real < 0.3 * w0)
+    expect = np.where(moved, s0 * 1.03, s0)
+    got = poles_s(Gs)
+    assert moved.sum() >= 12                                  # the 462/472 Hz group, once per column, both signs
+    d = np.abs(got[:, None] - expect[None, :]) / np.maximum(np.abs(expect[None, :]), 1.0)
+    assert d.min(axis=1).max() < 1e-6 and d.min(axis=0).max() < 1e-6
+
+    def dc(G):
+        return np.asarray(G.C) @ np.linalg.solve(np.eye(G.nstates) - np.asarray(G.A), np.asarray(G.B))
+    assert np.allclose(dc(Gs), dc(model), rtol=1e-8, atol=1e-10)
+
+
+def test_predicted_noise_sigma_of_a_first_order_plant_open_loop_is_the_closed_form():
+    """x+ = a x + b (u + w), y = x, zero controller: var y = b^2 s_w^2 / (1 - a^2) (DAC noise only
+    reaches the table; gauge noise enters through the controller, here zero)."""
+    from nanosim.design.architectures.lqg import predicted_noise_sigma_nm
+    a, b = 0.9, 0.2
+    G = ct.ss(a * np.eye(3), b * np.eye(3), np.eye(3), np.zeros((3, 3)), DT_S)
+    K = ct.ss(np.zeros((1, 1)), np.zeros((1, 6)), np.zeros((3, 1)), np.zeros((3, 6)), DT_S)
+    sig = predicted_noise_sigma_nm(G, K)
+    expect = b * constants.DAC_WHITE_NOISE_V / np.sqrt(1 - a * a) * constants.SENSOR_UM_PER_V * 1e3
+    assert np.allclose(sig, expect, rtol=1e-9)
