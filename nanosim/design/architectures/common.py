@@ -431,7 +431,7 @@ def uncertainty_vertex_check(Gd, Ke, Ky=None, uncertainty=None, *, n_random: int
         bad += rho >= 1.0
         if rho > worst:
             worst, arg = rho, (fs, zs, g, d)
-    return {"n_checked": len(pts), "n_unstable": int(bad), "all_stable": bad == 0,
+    return {"n_checked": len(pts), "n_unstable": int(bad), "all_stable": bool(bad == 0),
             "worst_spectral_radius": float(worst),
             "worst": {"freq_scale": float(arg[0]), "damping_scale": float(arg[1]),
                       "input_gain": [float(x) for x in arg[2]], "extra_delay_samples": int(arg[3])}}
