@@ -593,7 +593,14 @@ def test_analyze_controller_on_the_loop_as_run():
                 "dm_output_alpha", "least_damped_zeta", "spectral_radius"):
         assert res.summary[key] == pytest.approx(ref[key], rel=1e-9), key
     assert res.delay_samples == 1 and res.robust is not None
-    assert res.summary["mu_peak"] >= res.summary["mu_lower_peak"] * (1 - 1e-9)
+    assert res.summary["mu_covering_peak"] >= res.summary["mu_covering_lower_peak"] * (1 - 1e-9)
+    # mu_peak is the mixed (real-parametric) bound; mu < 1 would have to agree with the sampled check
+    assert res.mixed is not None and res.summary["mu_n_parameters"] == res.mixed.n_parameters
+    # this loop has unstable members (sampled spectral radius 1.03): the mixed analysis must not
+    # certify it (here its centre loop with one extra sample is already unstable: mu = inf, JSON null)
+    assert not res.summary["sampled_all_stable"] and res.summary["sampled_worst"] > 1.0
+    assert not res.mixed.robustly_stable and not res.summary["mu_robustly_stable"]
+    assert res.mixed.centre_spectral_radius > 1.0 and res.summary["mu_peak"] is None
     back = json.loads(json.dumps(res.to_dict(), allow_nan=False))
     assert back["uncertainty_set"]["extra_delay_samples_range"] == [0, 1]
     assert res.robust.sampled_worst_parameters["delay_samples"] in (1, 2)     # the loop's 1 + (0 or 1)

@@ -17,7 +17,7 @@ import pytest
 import scipy.optimize
 
 from nanosim.design.mu import mixed_mu_upper_bound, mu_upper_bound
-from nanosim.design.parametric import parametric_lft, robust_stability_mixed_mu
+from nanosim.design.parametric import merge_modes, parametric_lft, robust_stability_mixed_mu
 from nanosim.design.uncertainty import ModalPlant
 
 DT = 250e-6
@@ -153,3 +153,36 @@ def test_mixed_mu_rejects_bad_input():
         parametric_lft(two_mode_plant(), delay_samples_range=(0, 2))
     with pytest.raises(ValueError, match="discrete"):
         parametric_lft(ct.ss(-1.0, 1.0, 1.0, 0.0))
+
+
+def test_repeated_scalar_blocks():
+    # delta I (repeated): 1 - delta lambda_i(M) = 0, so mu = rho(M) for a complex delta and the
+    # largest |real eigenvalue| for a real one (0 if there is none)
+    rng = np.random.default_rng(2)
+    V = rng.standard_normal((4, 4)) + 1j * rng.standard_normal((4, 4))
+    lam = np.array([0.5, 2 + 2j, 2 - 1j, -1 + 2.5j])
+    M = V @ np.diag(lam) @ np.linalg.inv(V)
+    one = np.zeros(4, int)
+    assert mixed_mu_upper_bound(M, np.zeros(4, bool), groups=one).upper[0] == pytest.approx(np.abs(lam).max(),
+                                                                                             rel=1e-4)
+    assert mixed_mu_upper_bound(M, np.ones(4, bool), groups=one).upper[0] == pytest.approx(0.5, rel=1e-4)
+    # treating the repeated parameter as four independent ones is a (much) larger set
+    assert mixed_mu_upper_bound(M, np.ones(4, bool)).upper[0] > 2.0
+    with pytest.raises(ValueError, match="mixes real and complex"):
+        mixed_mu_upper_bound(M, np.array([True, True, False, False]), groups=one)
+
+
+def test_merge_modes_keeps_a_column_stacked_model():
+    # a model identified column by column holds each mode once per column: stack the same
+    # plant twice, each copy driven by one input; merging gives back one copy per mode
+    G = two_mode_plant()
+    A = np.kron(np.eye(2), G.A)
+    B = np.vstack([G.B @ np.diag([1.0, 0.0]), G.B @ np.diag([0.0, 1.0])])
+    G2 = ct.ss(A, B, np.hstack([G.C, G.C]), G.D, DT)
+    mm = merge_modes(G2)
+    assert mm.G.nstates == G.nstates and mm.n_merged == 4
+    assert mm.error_rel < 1e-8 and mm.residue_rank_ratio < 1e-8
+    f = np.geomspace(1.0, 1900.0, 30)
+    ref = np.array([G(np.exp(2j * np.pi * fk * DT)) for fk in f])
+    np.testing.assert_allclose(np.array([mm.G(np.exp(2j * np.pi * fk * DT)) for fk in f]), ref, rtol=1e-7,
+                               atol=1e-9 * np.abs(ref).max())

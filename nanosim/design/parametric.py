@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import control as ct
 import numpy as np
+import scipy.linalg
 
 from nanosim.design.loopargs import check_int, check_range, describe, is_lti
 from nanosim.design.loopresponse import (
@@ -51,10 +52,13 @@ from nanosim.design.loopresponse import (
     to_state_space,
 )
 from nanosim.design.margins import refine_mu_peak
-from nanosim.design.mu import mixed_mu_upper_bound
+from nanosim.design.mu import MixedMuBounds, mixed_mu_upper_bound
 from nanosim.design.uncertainty import ModalPlant
 
-__all__ = ["ParametricLFT", "MixedRobustStabilityResult", "parametric_lft", "robust_stability_mixed_mu"]
+SAME_MODE_REL = 0.003
+
+__all__ = ["SAME_MODE_REL", "ModalMerge", "merge_modes", "ParametricLFT", "MixedRobustStabilityResult",
+           "parametric_lft", "mode_band_grid", "robust_stability_mixed_mu"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,6 +72,9 @@ class ParametricLFT:
     ----------
     real : ndarray of bool, shape (n_delta,)
         Kind of each scalar parameter (modes and gains real, delays complex).
+    groups : ndarray of int, shape (n_delta,)
+        Entries with one label are one repeated parameter: the copies of one physical
+        mode (see :func:`parametric_lft`) and the delay of every input.
     labels : tuple of str
         What each parameter is, e.g. ``"mode 175.5 Hz radial"``.
     centre : control.StateSpace
@@ -78,6 +85,7 @@ class ParametricLFT:
     """
 
     real: np.ndarray
+    groups: np.ndarray
     labels: tuple
     centre: ct.StateSpace
     mode_bands_hz: tuple
@@ -113,14 +121,15 @@ class ParametricLFT:
         im, ig, idl = slice(0, nw), slice(nw, nw + nu), slice(nw + nu, nw + 2 * nu)
         P11[:, im, im] = SXw
         P11[:, im, ig] = SXuQ @ Ewg
-        P11[:, im, idl] = SXuQ @ Ewd
-        P11[:, idl, ig] = c * r * np.eye(nu)[None]
         P12[:, im, :] = SXuQ @ Eu
         P12[:, ig, :] = np.eye(nu)[None]
-        P12[:, idl, :] = c * np.eye(nu)[None]
         P21[:, :, im] = np.einsum("ym,fmw->fyw", d["Cm"], Xw)
         P21[:, :, ig] = Gc @ Ewg
-        P21[:, :, idl] = Gc @ Ewd
+        if dhi > dlo:
+            P11[:, im, idl] = SXuQ @ Ewd
+            P11[:, idl, ig] = c * r * np.eye(nu)[None]
+            P12[:, idl, :] = c * np.eye(nu)[None]
+            P21[:, :, idl] = Gc @ Ewd
         P22 = Gc @ Eu
         return P11, P12, P21, P22
 
@@ -135,7 +144,8 @@ class ParametricLFT:
         f = np.asarray(freq_hz, dtype=float)
         lam_new, _ = d["modal"].poles(float(freq_scale), float(damping_scale))
         lam_new = lam_new[d["pert"]]
-        out = np.empty(self.real.size - d["nu"], complex)
+        n_delay = d["nu"] if d["delay"][1] > d["delay"][0] else 0
+        out = np.empty(self.real.size - n_delay, complex)
         nw = d["owner"].size
         for j in range(lam_new.size):
             idx = np.flatnonzero(d["owner"] == j)
@@ -147,6 +157,8 @@ class ParametricLFT:
                 out[idx] = rhs.real / d["coef"][idx[0]].real if d["coef"][idx[0]] != 0 else 0.0
         g = (float(input_gain) - d["gain_c"]) / (d["gain_c"] * d["gain_r"]) if d["gain_r"] else 0.0
         out[nw:] = g
+        if not n_delay:
+            return np.broadcast_to(out.real, (f.size, out.size)).astype(complex)
         zf = np.exp(2j * np.pi * f * self.dt)
         dlo, dhi = d["delay"]
         cd = 0.5 * (zf ** -dlo + zf ** -dhi)
@@ -170,6 +182,98 @@ class ParametricLFT:
         ny = P22.shape[1]
         X = np.linalg.solve(np.eye(ny)[None] + P22 @ Kfb_f, P21)
         return P11 - P12 @ Kfb_f @ X
+
+
+@dataclass(frozen=True, eq=False)
+class ModalMerge:
+    """A plant with each physical mode once (:func:`merge_modes`).
+
+    Attributes
+    ----------
+    G : control.StateSpace
+        The merged plant (real modal realization, same sample time).
+    n_merged : int
+        Eigenvalues removed by merging.
+    residue_rank_ratio : float
+        Largest ``sigma_2 / sigma_1`` of a merged mode's summed residue (what the
+        rank-one residue drops).
+    error_rel : float
+        ``max_f sigma_max(G - G_merged) / max_f sigma_max(G)`` on the check grid.
+    """
+
+    G: ct.StateSpace
+    n_merged: int
+    residue_rank_ratio: float
+    error_rel: float
+
+
+def merge_modes(G, freq_hz=None) -> ModalMerge:
+    """Each physical mode of an identified model once, with a rank-one residue.
+
+    ``nanosim identify`` stacks one model per input column, so each structural mode
+    appears once per column (eigenvalues within a few 0.01 %).  Eigenvalues within
+    :data:`SAME_MODE_REL` of each other (same sign of the imaginary part) are merged:
+    the mean eigenvalue, and the rank-one part ``sigma_1 u v^H`` of their summed
+    residue ``sum_i c_i b_i^T`` (a mode of a structure drives and is seen through one
+    mode shape).  Other eigenvalues stay.  The result is what the stage's modal
+    uncertainty acts on (one frequency and one damping per mode) and is much smaller.
+
+    Parameters
+    ----------
+    G : control.StateSpace
+        Discrete, diagonalisable.
+    freq_hz : array_like or None
+        Grid [Hz] for ``error_rel`` (default 400 points from 1 Hz to Nyquist).
+
+    Returns
+    -------
+    ModalMerge
+    """
+    if not is_lti(G) or not (G.dt not in (None, 0, True) and G.dt > 0):
+        raise ValueError(f"G: expected a discrete control.StateSpace, got {describe(G)}")
+    dt = float(G.dt)
+    mp = ModalPlant(G, dt)
+    kind = mp.mode_kind()
+    lam, CV, VB = mp.lam, mp.CV, mp.VinvB
+    used = np.zeros(lam.size, bool)
+    modes: list[tuple[complex, np.ndarray, np.ndarray]] = []     # (lambda, c, b) with Im lambda >= 0
+    ratio, merged = 0.0, 0
+    for k in np.argsort(np.abs(mp.s)):
+        if used[k] or lam[k].imag < 0 or (kind[k] == 1 and mp.s[k].imag < 0):
+            continue
+        if kind[k] == 1:
+            grp = [j for j in range(lam.size) if kind[j] == 1 and not used[j] and mp.s[j].imag > 0
+                   and abs(abs(mp.s[j]) - abs(mp.s[k])) <= SAME_MODE_REL * abs(mp.s[k])]
+            R = sum(np.outer(CV[:, j], VB[j]) for j in grp)
+            U, sv, Vh = np.linalg.svd(R)
+            if len(grp) > 1:
+                ratio = max(ratio, float(sv[1] / sv[0]))
+                merged += 2 * (len(grp) - 1)
+            modes.append((complex(np.mean(lam[grp])), U[:, 0] * math.sqrt(sv[0]), Vh[0] * math.sqrt(sv[0])))
+            used[grp] = True
+        else:
+            modes.append((complex(lam[k]), CV[:, k], VB[k]))
+            used[k] = True
+    # conjugate partners of non-structural complex poles are covered by the pairs above
+    blocks_A, blocks_B, blocks_C = [], [], []
+    for lk, c, b in modes:
+        if abs(lk.imag) > 1e-12 * max(1.0, abs(lk)):
+            blocks_A.append(np.array([[lk.real, -lk.imag], [lk.imag, lk.real]]))
+            blocks_B.append(np.vstack([b.real, b.imag]))
+            blocks_C.append(np.column_stack([2 * c.real, -2 * c.imag]))
+        else:
+            blocks_A.append(np.array([[lk.real]]))
+            blocks_B.append(np.real(b)[None, :])
+            blocks_C.append(np.real(c)[:, None])
+    A = scipy.linalg.block_diag(*blocks_A) if blocks_A else np.zeros((0, 0))
+    B = np.vstack(blocks_B) if blocks_B else np.zeros((0, mp.nu))
+    C = np.hstack(blocks_C) if blocks_C else np.zeros((mp.C.shape[0], 0))
+    Gm = ct.ss(A, B, C, mp.D, dt)
+    f = np.geomspace(1.0, 0.5 / dt, 400) if freq_hz is None else np.asarray(freq_hz, float)
+    G0 = frequency_response(G, f)
+    E = frequency_response(Gm, f) - G0
+    err = float(np.max(np.linalg.svd(E, compute_uv=False)[:, 0]) / np.max(np.linalg.svd(G0, compute_uv=False)[:, 0]))
+    return ModalMerge(G=Gm, n_merged=int(merged), residue_rank_ratio=ratio, error_rel=err)
 
 
 def _sector(s: complex, fr: tuple, zr: tuple, dt: float):
@@ -212,6 +316,15 @@ def parametric_lft(G, *, input_gain_range=(0.75, 1.0), freq_scale_range=(0.97, 1
     Returns
     -------
     ParametricLFT
+
+    Notes
+    -----
+    An identified model holds each physical mode once per identified column (three
+    eigenvalues within a few 0.01 % of each other).  Eigenvalues whose natural
+    frequencies lie within :data:`SAME_MODE_REL` of each other (same sign of the
+    imaginary part) are one physical mode: their radial parameters are one repeated
+    real parameter, and so are their tangential ones.  Distinct modes of the stage are
+    at least 1.5 % apart (the XY split), and each moves on its own.
     """
     if not is_lti(G):
         raise TypeError(f"G: expected a discrete control.StateSpace or TransferFunction, got {describe(G)}")
@@ -229,23 +342,32 @@ def parametric_lft(G, *, input_gain_range=(0.75, 1.0), freq_scale_range=(0.97, 1
     kind = mp.mode_kind()
     pert = np.flatnonzero(kind > 0)
     rest = np.flatnonzero(kind == 0)
-    lam0, b0, q, coef, owner, labels, bands = [], [], [], [], [], [], []
+    lam0, b0, q, coef, owner, labels, bands, groups = [], [], [], [], [], [], [], []
+    clusters: list[tuple[float, float, int]] = []          # (w_n, sign, label)
     for j, k in enumerate(pert):
         lam, s, bk = mp.lam[k], mp.s[k], mp.VinvB[k]
         if kind[k] == 1:
+            sign = 1.0
+            lab = next((c[2] for c in clusters if c[1] == sign and abs(abs(s) - c[0]) <= SAME_MODE_REL * c[0]),
+                       None)
+            if lab is None:
+                lab = 2 * len(clusters)
+                clusters.append((abs(s), sign, lab))
+            groups += [lab, lab + 1]
             lam_c, m, a, b, band = _sector(s, fr, zr, dt)
             l0 = lam_c * m
             coef += [lam_c * a, 1j * lam_c * b]
             owner += [j, j]
             fhz = abs(s) / (2 * math.pi)
             labels += [f"mode {fhz:.1f} Hz radial", f"mode {fhz:.1f} Hz tangential"]
-            if s.imag > 0:
-                bands.append(band)
+            if s.imag > 0 and lab // 2 not in [b[2] for b in bands]:
+                bands.append((band[0], band[1], lab // 2))
         else:
             e = [math.exp(s.real * fs * dt) for fs in fr]
             l0 = 0.5 * (e[0] + e[1])
             coef.append(0.5 * abs(e[1] - e[0]))
             owner.append(j)
+            groups.append(-1 - j)
             labels.append(f"real pole {abs(s) / (2 * math.pi):.3g} Hz")
         lam0.append(l0)
         b0.append(bk * (1 - l0) / (1 - lam))
@@ -264,8 +386,15 @@ def parametric_lft(G, *, input_gain_range=(0.75, 1.0), freq_scale_range=(0.97, 1
 
     c = 0.5 * (glo + ghi)
     r = (ghi - glo) / (ghi + glo)
-    labels += [f"piezo gain input {i}" for i in range(nu)] + [f"delay input {i}" for i in range(nu)]
-    real = np.array([True] * (len(owner) + nu) + [False] * nu)
+    n_delay = nu if dhi > dlo else 0
+    labels += [f"piezo gain input {i}" for i in range(nu)] + [f"delay input {i}" for i in range(n_delay)]
+    real = np.array([True] * (len(owner) + nu) + [False] * n_delay)
+    g_arr = np.array(groups, int)
+    base = (g_arr.max() + 1) if g_arr.size else 0
+    g_arr = np.where(g_arr < 0, base - g_arr, g_arr)            # real poles: labels of their own
+    top = (g_arr.max() + 1) if g_arr.size else 0
+    g_arr = np.concatenate([g_arr, top + np.arange(nu), np.full(n_delay, top + nu)])   # gains own, delay repeated
+    g_arr.setflags(write=False)
     # centre plant: centre modes, gain c, FIR (z^-dlo + z^-dhi)/2
     lam_all = mp.lam.astype(complex).copy()
     fac = np.ones(lam_all.size, complex)
@@ -281,8 +410,8 @@ def parametric_lft(G, *, input_gain_range=(0.75, 1.0), freq_scale_range=(0.97, 1
             "owner": np.array(owner, int), "Cm": Cm, "rest": rest_response, "gain_c": c, "gain_r": r,
             "delay": (dlo, dhi), "modal": mp, "pert": pert}
     real.setflags(write=False)
-    return ParametricLFT(real=real, labels=tuple(labels), centre=ct.ss(P.A, P.B, P.C, P.D, dt),
-                         mode_bands_hz=tuple(sorted(bands)), dt=dt, _data=data)
+    return ParametricLFT(real=real, groups=g_arr, labels=tuple(labels), centre=ct.ss(P.A, P.B, P.C, P.D, dt),
+                         mode_bands_hz=tuple(sorted((b[0], b[1]) for b in bands)), dt=dt, _data=data)
 
 
 def _fir_delay(n: int, dlo: int, dhi: int, dt: float) -> ct.StateSpace:
@@ -317,11 +446,15 @@ class MixedRobustStabilityResult:
     freq_hz, mu_upper, complex_upper : ndarray, shape (F,)
         Grid [Hz], mixed bound and the bound with every parameter taken complex.
     centre_stable : bool
+        Every delay's centre loop is stable.
     centre_spectral_radius : float
+        The largest over the delays.
     n_parameters : int
         Scalar parameters (real and complex).
     n_real : int
     labels : tuple of str
+    merge_error_rel, merge_residue_rank_ratio : float or None
+        :class:`ModalMerge` figures of the analysed plant (None: not merged).
     """
 
     mu_peak: float
@@ -334,6 +467,8 @@ class MixedRobustStabilityResult:
     n_parameters: int
     n_real: int
     labels: tuple
+    merge_error_rel: float | None = None
+    merge_residue_rank_ratio: float | None = None
 
     @property
     def robustly_stable(self) -> bool:
@@ -349,7 +484,7 @@ def mode_band_grid(lft: ParametricLFT, n_per_band: int = 40) -> np.ndarray:
 
 def robust_stability_mixed_mu(G_nominal, K, Ky, freq_hz, *, input_gain_range=(0.75, 1.0),
                               freq_scale_range=(0.97, 1.03), damping_scale_range=(0.5, 2.0),
-                              delay_samples_range=(0, 1), n_per_band: int = 40,
+                              delay_samples_range=(0, 1), n_per_band: int = 24, merge: bool = True,
                               refine: bool = True) -> MixedRobustStabilityResult:
     """Mixed-mu robust stability of ``u = K e + Ky y`` over the parametric set.
 
@@ -364,16 +499,31 @@ def robust_stability_mixed_mu(G_nominal, K, Ky, freq_hz, *, input_gain_range=(0.
         The set (see :func:`parametric_lft`); delays absolute [samples].
     n_per_band : int
         Points of the dense grid per mode band.
+    merge : bool
+        Analyse :func:`merge_modes` of ``G_nominal`` (each physical mode once; the
+        result states the merge's error).  Without it, every eigenvalue is its own mode.
     refine : bool
         Refine the peak between grid points.
 
     Returns
     -------
     MixedRobustStabilityResult
+
+    Notes
+    -----
+    The set's delays are integers, so each delay is analysed on its own (exactly, no
+    delay disk) and the worst is reported.  A centre loop (centre gains and modes) that
+    is unstable for some delay is a member of the set that is unstable: ``mu_peak`` is
+    then ``inf``.
     """
     check_int("n_per_band", n_per_band, 2)
-    lft = parametric_lft(G_nominal, input_gain_range=input_gain_range, freq_scale_range=freq_scale_range,
-                         damping_scale_range=damping_scale_range, delay_samples_range=delay_samples_range)
+    dlo, dhi = check_range("delay_samples_range", delay_samples_range, positive=False, integer=True)
+    mm = merge_modes(G_nominal) if merge else None
+    G_nominal = mm.G if merge else G_nominal
+    kw = {"input_gain_range": input_gain_range, "freq_scale_range": freq_scale_range,
+          "damping_scale_range": damping_scale_range}
+    lfts = [parametric_lft(G_nominal, delay_samples_range=(d, d), **kw) for d in range(dlo, dhi + 1)]
+    lft = lfts[0]
     dt = lft.dt
     nyq = 0.5 / dt
     f0 = np.asarray(freq_hz, dtype=float).ravel()
@@ -385,24 +535,37 @@ def robust_stability_mixed_mu(G_nominal, K, Ky, freq_hz, *, input_gain_range=(0.
     Ks = to_state_space(K, dt, "K")
     Kys = None if Ky is None else to_state_space(Ky, dt, "Ky")
     Kfb = feedback_operator_ss(Ks, Kys, dt)
-    ok, rho = stability(closed_loop_matrix(lft.centre, Kfb), True)
-
-    def M_of(fr):
-        return lft.closed(frequency_response(Kfb, fr), fr)
-
-    mb = mixed_mu_upper_bound(M_of(f), lft.real, peak_only=True)
-    if refine:
+    Kf = frequency_response(Kfb, f)
+    ok, rho = True, 0.0
+    pk, fpk = -math.inf, math.nan
+    upper, cupper = np.zeros(f.size), np.zeros(f.size)
+    for one in lfts:          # one exact delay at a time: the set's delays are integers
+        ok1, rho1 = stability(closed_loop_matrix(one.centre, Kfb), True)
+        ok, rho = ok and ok1, max(rho, rho1)
+        if not ok1:
+            pk, fpk = math.inf, math.nan
+            break
+        mb = mixed_mu_upper_bound(one.closed(Kf, f), one.real, groups=one.groups, peak_only=True)
+        upper, cupper = np.maximum(upper, mb.upper), np.maximum(cupper, mb.complex_upper)
         top = float(np.max(mb.upper))
-        pk, fpk = refine_mu_peak(lambda fr: mixed_mu_upper_bound(M_of(fr), lft.real, peak_only=True,
-                                                                 floor=top).upper, f, np.asarray(mb.upper))
-        pk = max(pk, top)
-    else:
-        i = int(np.argmax(mb.upper))
-        pk, fpk = float(mb.upper[i]), float(f[i])
+        if refine:
+            p1, f1 = refine_mu_peak(
+                lambda fr, o=one: mixed_mu_upper_bound(o.closed(frequency_response(Kfb, fr), fr), o.real,
+                                                       groups=o.groups, peak_only=True, floor=top).upper,
+                f, np.asarray(mb.upper))
+            p1 = max(p1, top)
+        else:
+            i = int(np.argmax(mb.upper))
+            p1, f1 = float(mb.upper[i]), float(f[i])
+        if p1 > pk:
+            pk, fpk = p1, f1
+    mb = MixedMuBounds(upper, cupper, lft.real, np.ones(f.size, bool))
     out = [f, np.array(mb.upper), np.array(mb.complex_upper)]
     for a in out:
         a.setflags(write=False)
     return MixedRobustStabilityResult(mu_peak=float(pk), mu_peak_freq_hz=float(fpk), freq_hz=out[0],
                                       mu_upper=out[1], complex_upper=out[2], centre_stable=bool(ok),
                                       centre_spectral_radius=float(rho), n_parameters=int(lft.real.size),
-                                      n_real=int(lft.real.sum()), labels=lft.labels)
+                                      n_real=int(lft.real.sum()), labels=lft.labels,
+                                      merge_error_rel=None if mm is None else mm.error_rel,
+                                      merge_residue_rank_ratio=None if mm is None else mm.residue_rank_ratio)

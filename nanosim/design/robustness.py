@@ -55,6 +55,7 @@ from nanosim.design.margins import (
     least_damped_pole,
 )
 from nanosim.design.mu import MuBounds, mu_lower_bound, mu_upper_bound
+from nanosim.design.parametric import MixedRobustStabilityResult, robust_stability_mixed_mu
 from nanosim.design.uncertainty import (
     STAGE_UNCERTAINTY,
     RobustStabilityResult,
@@ -160,6 +161,23 @@ def _mu_dict(res: RobustStabilityResult) -> dict:
             "mu_nominal_stable": res.nominal_stable, "sampled_all_stable": res.sampled_all_stable,
             "sampled_worst": json_num(res.sampled_worst),
             "sampled_worst_parameters": res.sampled_worst_parameters, "n_parameter_samples": res.n_samples}
+
+
+def _mixed_dict(res: MixedRobustStabilityResult, covering: dict) -> dict:
+    """``mu_*`` keys: the mixed (real-parametric) bound; the complex covering as ``mu_covering_*``."""
+    out = {"mu_peak": json_num(res.mu_peak), "mu_peak_freq_hz": json_num(res.mu_peak_freq_hz),
+           "mu_robustly_stable": res.robustly_stable, "mu_centre_stable": res.centre_stable,
+           "mu_method": "mixed real/complex mu upper bound (D-G scalings) of the parametric LFT: each mode's "
+                        "frequency and damping and each piezo gain a real parameter; each delay of the set on its own; "
+                        "null when a centre loop is unstable (mu_centre_stable)",
+           "mu_n_parameters": res.n_parameters, "mu_n_real_parameters": res.n_real,
+           "mu_merge_error_rel": None if res.merge_error_rel is None else json_num(res.merge_error_rel)}
+    out.update({"mu_covering_peak": covering["mu_peak"], "mu_covering_peak_freq_hz": covering["mu_peak_freq_hz"],
+                "mu_covering_lower_peak": covering["mu_lower_peak"],
+                "mu_covering_robustly_stable": covering["mu_robustly_stable"]})
+    out.update({k: covering[k] for k in ("sampled_all_stable", "sampled_worst", "sampled_worst_parameters",
+                                         "n_parameter_samples")})
+    return out
 
 
 def robustness_summary(G, K, freq_hz, Ky=None, *, delay_samples: int = 0, dt=None, skew: float = 0.0,
@@ -439,6 +457,10 @@ def stage_grid_hz(plant: LoopPlant, K, Ky=None, f_min_hz: float = 0.1, n: int = 
     return analysis_grid_hz([_poles_as_ss(x) for x in s], f_min_hz, 0.5 / T, n)
 
 
+# base grid of the mixed-mu analysis (a dense grid over every mode's band is added to it)
+MIXED_BASE_POINTS = 60
+
+
 @dataclass(frozen=True, eq=False)
 class ControllerRobustness:
     """Robustness of one controller on one :class:`LoopPlant` (from :func:`analyze_controller`).
@@ -452,12 +474,15 @@ class ControllerRobustness:
         Loop transfer matrices on ``response.freq_hz``.
     margins : DiskMarginReport
     robust : RobustStabilityResult or None
+        The complex covering and the sampled check (:func:`robust_stability_mu`).
     poles : ndarray, complex
         Closed-loop poles (``z``).
     summary : dict
         :func:`robustness_summary`-style figures plus ``least_damped_*_50_1000hz`` and
         ``least_damped_visible_*`` (poles with :func:`pole_visibility` >= :data:`VISIBLE_PEAK`).
     uncertainty : UncertaintySet or None
+    mixed : MixedRobustStabilityResult or None
+        Robust stability over the parametric set by the mixed mu bound (``summary["mu_peak"]``).
     """
 
     label: str
@@ -468,6 +493,7 @@ class ControllerRobustness:
     poles: np.ndarray
     summary: dict = field(default_factory=dict)
     uncertainty: UncertaintySet | None = None
+    mixed: MixedRobustStabilityResult | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready: the summary, the loop's delay and the uncertainty set."""
@@ -532,10 +558,15 @@ def analyze_controller(controller, plant, *, n_error: int | None = None, uncerta
     summary.update(_peaks_dict(loop, f, r))
     rep = disk_margins(G, K, f, Ky, delay_samples=d)
     summary.update(_margins_dict(rep))
-    res = None
+    res = mixed = None
     if mu:
-        res = robust_stability_mu(G, K, Ky, None, f, n_levels=n_levels, n_random=n_random, seed=seed,
-                                  **uncertainty.mu_kwargs(d))
-        summary.update(_mu_dict(res))
+        kw = uncertainty.mu_kwargs(d)
+        res = robust_stability_mu(G, K, Ky, None, f, n_levels=n_levels, n_random=n_random, seed=seed, **kw)
+        mixed = robust_stability_mixed_mu(G, K, Ky, np.geomspace(f[0], f[-1], MIXED_BASE_POINTS),
+                                          input_gain_range=kw["input_gain_range"],
+                                          freq_scale_range=kw["freq_scale_range"],
+                                          damping_scale_range=kw["damping_scale_range"],
+                                          delay_samples_range=kw["delay_samples_range"])
+        summary.update(_mixed_dict(mixed, _mu_dict(res)))
     return ControllerRobustness(label=plant.label, delay_samples=d, response=r, margins=rep, robust=res,
-                                poles=poles, summary=summary, uncertainty=uncertainty if mu else None)
+                                poles=poles, summary=summary, uncertainty=uncertainty if mu else None, mixed=mixed)

@@ -88,8 +88,9 @@ def plot_disk_margins(analyses, target_alpha: float = 0.4, title: str = "Disk ma
     -------
     matplotlib.figure.Figure
         Left: ``alpha(f) = 1 / mu(f)`` (a lower bound of the margin away from the peaks,
-        see :func:`nanosim.design.mu.mu_upper_bound` ``peak_only``); right: the mu upper
-        bound over frequency for the uncertainty set (robustly stable if below 1).
+        see :func:`nanosim.design.mu.mu_upper_bound` ``peak_only``); right: the mixed mu
+        upper bound over the parametric uncertainty set (robustly stable if below 1;
+        :mod:`nanosim.design.parametric`), and dotted the unstructured complex covering.
     """
     items = _check(analyses)
     fig, axs = new_figure(1, 2, size=(14, 5))
@@ -102,10 +103,14 @@ def plot_disk_margins(analyses, target_alpha: float = 0.4, title: str = "Disk ma
         for attr, where, ls in styles:
             ax.loglog(m.freq_hz, getattr(m, attr), color=col, ls=ls, lw=1.1,
                       label=f"{label}, {where}: min {getattr(m, where.replace(' + ', '_')).alpha:.3g}")
+        mx = getattr(a, "mixed", None)
+        if mx is not None:
+            axm.loglog(mx.freq_hz, mx.mu_upper, color=col, lw=1.3,
+                       label=f"{label}: mixed mu (real parameters) {mx.mu_peak:.3g} at {mx.mu_peak_freq_hz:.1f} Hz")
         if a.robust is not None:
             rb = a.robust
-            axm.loglog(rb.freq_hz, rb.mu_upper, color=col, lw=1.1,
-                       label=f"{label}: peak {rb.mu_peak:.3g} at {rb.mu_peak_freq_hz:.1f} Hz; sampled set "
+            axm.loglog(rb.freq_hz, rb.mu_upper, color=col, lw=0.8, ls=":",
+                       label=f"{label}: complex covering, peak {rb.mu_peak:.3g}; sampled set "
                              + ("all stable" if rb.sampled_all_stable else "has unstable members"))
     ax.axhline(target_alpha, color="k", ls="--", lw=0.8, label=f"target {target_alpha:g}")
     ax.set_xlabel("frequency [Hz]")
