@@ -35,7 +35,7 @@ from nanosim.plant import batch_kernel
 from nanosim.plant.batch_electronics import BatchElectronics, BatchReading
 from nanosim.plant.floor import FloorConfig, floor_model
 from nanosim.plant.mechanics import home_data
-from nanosim.plant.mjcf import custom_numeric, probe_layout, update_position_sensors
+from nanosim.plant.mjcf import custom_numeric, probe_layout
 from nanosim.plant.noise import NormalStream, child_seed
 from nanosim.plant.stage import StageConfig, Trace, rollout_probes_um
 from nanosim.validation import as_finite_array
@@ -140,6 +140,7 @@ class _BatchStageBase:
         self.floor = _BatchFloor(self._floor_models, self.config.floor, self.seeds, getattr(self, "exact", True)) \
             if self._floor_models else None
         self.time_s = 0.0
+        self._floor_ahead = None
         self.last_piezo_V = np.zeros((self.n, 3))
         self.last_saturated = np.zeros((self.n, 3), dtype=bool)
         self.last_clipped = np.zeros((self.n, 3), dtype=bool)
@@ -191,7 +192,8 @@ class _BatchStageBase:
 
     def _add_floor(self) -> None:
         if self.floor is not None and self.floor.active:
-            self.table_um = self.table_um + self.floor.step()
+            fl, self._floor_ahead = getattr(self, "_floor_ahead", None), None
+            self.table_um = self.table_um + (fl if fl is not None else self.floor.step())
 
     # subclass hooks
     def _reset_mechanics(self) -> None:
@@ -348,23 +350,35 @@ def _member_commands(u_V, n_members: int) -> np.ndarray:
     return u
 
 
-def _step_claimed(models, datas, forces, substeps, adrs, biases, out, claims, n) -> None:
+def _member_views(model, data, adr, bias) -> tuple:
+    """``(model, data, ctrl, probes, bias)`` of one member: ``data``'s ctrl array and its probe
+    components (a strided view of ``sensordata`` when the addresses are evenly spaced, else the
+    addresses), made once so that stepping a member does little under the GIL.
+    """
+    step = int(adr[1] - adr[0])
+    even = step > 0 and int(adr[2] - adr[1]) == step
+    probes = data.sensordata[int(adr[0]):int(adr[2]) + 1:step] if even else adr
+    return model, data, data.ctrl, probes, bias
+
+
+def _step_claimed(members, forces, substeps, out, claims, n) -> None:
     """Step members as they are claimed from the shared counter ``claims`` (``next`` is atomic under
     the GIL) until all ``n`` are taken: a thread that is behind (a busy core) takes fewer.
     """
     for i in claims:
         if i >= n:
             return
-        _step_members(models, datas, forces, substeps, adrs, biases, out, (i,))
+        _step_members(members, forces, substeps, out, (i,))
 
 
-def _step_members(models, datas, forces, substeps, adrs, biases, out, idx) -> None:
+def _step_members(members, forces, substeps, out, idx) -> None:
     for i in idx:
-        d = datas[i]
-        d.ctrl[:] = forces[i]
-        mujoco.mj_step(models[i], d, substeps)
-        update_position_sensors(models[i], d)          # the reading at the end of the period, as Stage.step
-        out[i] = (d.sensordata[adrs[i]] + biases[i]) * 1e6
+        m, d, ctrl, probes, bias = members[i]
+        ctrl[:] = forces[i]
+        mujoco.mj_step(m, d, substeps)
+        mujoco.mj_kinematics(m, d)                     # update_position_sensors: the reading at the end
+        mujoco.mj_sensorPos(m, d)                      # of the period, as Stage.step
+        out[i] = ((probes if probes.dtype.kind == "f" else d.sensordata[probes]) + bias) * 1e6
 
 
 class BatchMujocoStage(_BatchStageBase):
@@ -465,19 +479,25 @@ class BatchMujocoStage(_BatchStageBase):
 
     def _reset_mechanics(self) -> None:
         self.datas = [home_data(m) for m in self.models]
+        self._members = [_member_views(m, d, a, b)
+                         for m, d, a, b in zip(self.models, self.datas, self._adr, self._bias)]
         self.table_um = np.array([(d.sensordata[a] + b) * 1e6 for d, a, b in zip(self.datas, self._adr, self._bias)])
 
     def _advance(self, v_free_V: np.ndarray) -> None:
         forces = self._force_per_V * v_free_V
         out = np.empty((self.n, 3))
-        args = (self.models, self.datas, forces, self.substeps, self._adr, self._bias, out)
+        args = (self._members, forces, self.substeps, out)
         if self._pool is None:
             _step_members(*args, range(self.n))
         else:
             # members are claimed one at a time by the threads (the calling thread too), so a thread
-            # held up by a busy core takes fewer; each member's numbers do not depend on its thread
+            # held up by a busy core takes fewer; each member's numbers do not depend on its thread.
+            # The calling thread first draws this period's floor vibration (it does not depend on
+            # the mechanics; _add_floor adds it as usual) while the other threads step.
             claims = itertools.count()
             futures = [self._pool.submit(_step_claimed, *args, claims, self.n) for _ in self._parts[1:]]
+            if self.floor is not None and self.floor.active:
+                self._floor_ahead = self.floor.step()
             _step_claimed(*args, claims, self.n)
             for f in futures:
                 f.result()
