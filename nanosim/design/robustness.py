@@ -457,7 +457,9 @@ def stage_grid_hz(plant: LoopPlant, K, Ky=None, f_min_hz: float = 0.1, n: int = 
     return analysis_grid_hz([_poles_as_ss(x) for x in s], f_min_hz, 0.5 / T, n)
 
 
-# base grid of the mixed-mu analysis (a dense grid over every mode's band is added to it)
+# base grid of the mixed-mu analysis; a dense grid over every mode's band is added to it (24 points
+# over +-3 % of frequency: 0.25 % steps, a third of the modes' half-power width), and the peak is
+# the grid's (refining it between grid points costs 4x and moved it by 5 % on the seed-0 LQG)
 MIXED_BASE_POINTS = 60
 
 
@@ -566,7 +568,7 @@ def analyze_controller(controller, plant, *, n_error: int | None = None, uncerta
                                           input_gain_range=kw["input_gain_range"],
                                           freq_scale_range=kw["freq_scale_range"],
                                           damping_scale_range=kw["damping_scale_range"],
-                                          delay_samples_range=kw["delay_samples_range"])
+                                          delay_samples_range=kw["delay_samples_range"], refine=False)
         summary.update(_mixed_dict(mixed, _mu_dict(res)))
     return ControllerRobustness(label=plant.label, delay_samples=d, response=r, margins=rep, robust=res,
                                 poles=poles, summary=summary, uncertainty=uncertainty if mu else None, mixed=mixed)
