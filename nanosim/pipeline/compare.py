@@ -9,7 +9,8 @@ For every controller (a bench design from the identified model, a state-space fi
    (:func:`feedback_sensitivity`) -- for a two-degree-of-freedom controller the
    reference-to-error map of the bandwidth experiment is not the loop's sensitivity;
 3. once per linear controller (seed-independent): ``robustness.json`` and its figures on
-   the identified model and on the linear twin, both with the loop's one-sample delay
+   the identified model as it is (it is the loop as run) and on the linear twin with the loop's
+   one-sample delay
    (:func:`nanosim.pipeline.design.write_robustness`).
 
 The scorecard (:mod:`nanosim.pipeline.scorecard`) then gives mean, spread and worst case
@@ -240,7 +241,7 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
         folder.mkdir(parents=True, exist_ok=True)
         _save_controller(spec, folder / A.CONTROLLER_NPZ)
         if config.robustness and spec.is_lti and Gd is not None:
-            say(f"{spec.name}: robustness analysis (identified model and twin, one-sample delay)")
+            say(f"{spec.name}: robustness analysis (identified model = loop as run, and twin)")
             robustness[spec.name] = _robustness(spec, folder, Gd, twin_sysd)
         per[spec.name] = {}
         for seed in config.seeds:

@@ -297,8 +297,8 @@ def _markdown(doc: dict) -> str:
              f"{doc['experiments'] if isinstance(doc['experiments'], str) else ', '.join(doc['experiments'])}; "
              f"identified model: {doc['model'] or 'n/a'}.\n",
              "Cells: mean ± standard deviation over the seeds (worst case); ✓/✗: the issue's acceptance on the "
-             "worst case. Robustness rows are per design (identified model and linear twin, each with the loop's "
-             "one-sample delay; mu over the stage's uncertainty set).\n",
+             "worst case. Robustness rows are per design (the identified model, which is the loop as run, and the "
+             "linear twin with the loop's one-sample delay; mu over the stage's uncertainty set).\n",
              markdown_table(doc), "",
              f"**Default rule.** {doc['default_rule']}", "",
              f"**Default:** `{doc['default']}` -- {doc['default_reason']}.", "", "## Designs", ""]
