@@ -386,7 +386,10 @@ def _robustness_blocks(run: Path) -> list:
             ("dm_output_phase_margin_deg", "disk phase margin, output [deg]"),
             ("least_damped_visible_zeta", "least damped visible closed-loop pole, zeta"),
             ("least_damped_visible_freq_hz", "  its frequency [Hz]"),
-            ("mu_peak", "mu peak over the uncertainty set"), ("sampled_worst", "worst sampled spectral radius")]
+            ("mu_peak", "mixed mu peak over the parametric set (real modes and gains)"),
+            ("mu_peak_freq_hz", "  its frequency [Hz]"), ("mu_centre_stable", "  centre loops stable"),
+            ("mu_covering_peak", "mu of the unstructured complex covering (conservative)"),
+            ("sampled_worst", "worst sampled spectral radius")]
     plants = rob["plants"]
     u = rob.get("uncertainty_set", {})
     return [("h", 2, "Robustness"),
@@ -394,8 +397,10 @@ def _robustness_blocks(run: Path) -> list:
                   "added) and with the identified model (robustness.json). Uncertainty set: piezo gain per channel "
                   f"{u.get('input_gain_range_factor')}, modal frequencies x{u.get('freq_scale_range_factor')}, "
                   f"modal damping x{u.get('damping_scale_range_factor')}, delay +{u.get('extra_delay_samples_range')} "
-                  "samples beyond the loop as run; robustly stable if the mu peak is below 1 and every sampled "
-                  "spectral radius below 1."),
+                  "samples beyond the loop as run. The mixed mu bound treats each mode's frequency and damping and each "
+                  "piezo gain as real parameters: below 1 proves stability of every plant of the set; empty means a "
+                  "centre loop is unstable. The complex covering (every modal change one complex block) is far more "
+                  "conservative; the sampled spectral radius closes the loop at the set's vertices."),
             ("table", ["quantity"] + [plants[k].get("plant", k) for k in plants],
              [[lab] + [_fmt(plants[k].get(key)) for k in plants] for key, lab in keys], None)]
 
