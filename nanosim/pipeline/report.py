@@ -398,9 +398,9 @@ def _robustness_blocks(run: Path) -> list:
                   f"{u.get('input_gain_range_factor')}, modal frequencies x{u.get('freq_scale_range_factor')}, "
                   f"modal damping x{u.get('damping_scale_range_factor')}, delay +{u.get('extra_delay_samples_range')} "
                   "samples beyond the loop as run. The mixed mu bound treats each mode's frequency and damping and "
-                  "each piezo gain as real parameters: below 1 proves stability of every plant of the set; empty means a "
-                  "centre loop is unstable. The complex covering (every modal change one complex block) is far more "
-                  "conservative; the sampled spectral radius closes the loop at the set's vertices."),
+                  "each piezo gain as real parameters: below 1 proves stability of every plant of the set; empty "
+                  "means a centre loop is unstable. The complex covering (every modal change one complex block) "
+                  "is far more conservative; the sampled spectral radius closes the loop at the set's vertices."),
             ("table", ["quantity"] + [plants[k].get("plant", k) for k in plants],
              [[lab] + [_fmt(plants[k].get(key)) for k in plants] for key, lab in keys], None)]
 
