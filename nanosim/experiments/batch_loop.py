@@ -204,25 +204,23 @@ def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle:
         _, (yv, tb, us, sat) = batch_kernel.twin_closed_loop(stage, controller.kernel_arrays(),
                                                              rv[:, :, :controller.n_error], y, True)
         return _traces(ref, yv, tb, us, sat)
-    yv, tb, us = (np.empty((n, nb, 3)) for _ in range(3))
-    sat = np.empty((n, nb, 3), dtype=bool)
+    yv, tb, us = (np.empty((nb, n, 3)) for _ in range(3))       # members first, as the compiled loop's
+    sat = np.empty((nb, n, 3), dtype=bool)
     rv = np.ascontiguousarray(np.swapaxes(ref, 0, 1)) / UM_PER_V      # (N, B, 3): rv[k] contiguous
     for k in range(n):
         u = controller.feedback(rv[k], y)
-        yv[k] = y
-        tb[k] = stage.table_um
-        us[k] = u
+        yv[:, k] = y
+        tb[:, k] = stage.table_um
+        us[:, k] = u
         y = stage.step(u)
-        sat[k] = stage.last_saturated
+        sat[:, k] = stage.last_saturated
     return _traces(ref, yv, tb, us, sat)
 
 
 def _traces(ref, yv, tb, us, sat) -> list[LoopTrace]:
-    n, nb = yv.shape[:2]
-    ys = yv * UM_PER_V                        # the same product per element as the single loop's y * UM_PER_V
+    """One trace per member from the ``(B, N, 3)`` records (members first: each trace holds its own rows)."""
+    nb, n = yv.shape[:2]
+    ys = np.multiply(yv, UM_PER_V, out=yv)   # the same product per element as the single loop's y * UM_PER_V
     t = np.arange(n) / FS
-    # members first, in one pass per record (a member's column of an (N, B, 3) record is B * 24 bytes
-    # apart: copying it member by member touches a cache line per row); each trace holds its own rows
-    ys, tb, us, sat = (np.ascontiguousarray(np.swapaxes(a, 0, 1)) for a in (ys, tb, us, sat))
     return [LoopTrace(t_s=t, ref_um=np.array(ref[b]), y_um=ys[b], table_um=tb[b], u_V=us[b], saturated=sat[b])
             for b in range(nb)]

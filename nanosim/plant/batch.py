@@ -167,7 +167,7 @@ class _BatchStageBase:
         """Open-loop run of ``(B, N, 3)`` commands (or one ``(N, 3)`` array for every member)."""
         u = _member_commands(u_V, self.n)
         n = u.shape[1]
-        pz, sat, tb, yv, yu, cl = (np.empty((n, self.n, 3)) for _ in range(6))
+        pz, sat, tb, yv, yu, cl = (np.empty((self.n, n, 3)) for _ in range(6))     # members first
         t0 = self.time_s
         k_start = n
         if self.compiled and n and batch_kernel.supported(self, started=False):
@@ -178,17 +178,17 @@ class _BatchStageBase:
             self._add_floor()
             self.time_s += self.dt_s
             sens = self.electronics.read(self.table_um)
-            pz[k], sat[k], tb[k], yv[k], yu[k], cl[k] = v_piezo, s, self.table_um, sens.reading_V, \
-                sens.reading_um, sens.clipped
+            pz[:, k], sat[:, k], tb[:, k], yv[:, k], yu[:, k], cl[:, k] = v_piezo, s, self.table_um, \
+                sens.reading_V, sens.reading_um, sens.clipped
             self.last_piezo_V, self.last_saturated, self.last_clipped = v_piezo, s, sens.clipped
         if k_start < n:
             rest = batch_kernel.twin_open_loop(self, np.ascontiguousarray(np.swapaxes(u[:, k_start:], 0, 1)))
             for whole, part in zip((pz, sat, tb, yv, yu, cl), rest):
-                whole[k_start:] = part
+                whole[:, k_start:] = part
         t = self._trace_time(t0, n)
-        return [Trace(t_s=t, u_V=np.array(u[b]), piezo_V=pz[:, b].copy(), saturated=sat[:, b].astype(bool),
-                      table_um=tb[:, b].copy(), sensor_V=yv[:, b].copy(), sensor_um=yu[:, b].copy(),
-                      clipped=self._trace_clipped(cl[:, b].astype(bool))) for b in range(self.n)]
+        return [Trace(t_s=t, u_V=np.array(u[b]), piezo_V=pz[b].copy(), saturated=sat[b].astype(bool),
+                      table_um=tb[b].copy(), sensor_V=yv[b].copy(), sensor_um=yu[b].copy(),
+                      clipped=self._trace_clipped(cl[b].astype(bool))) for b in range(self.n)]
 
     def _add_floor(self) -> None:
         if self.floor is not None and self.floor.active:

@@ -290,9 +290,9 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
         if rec and not orec:
             for b in range(nb):
                 for c in range(3):
-                    yv[k0 + kk, b, c] = y[b, c]
-                    tb[k0 + kk, b, c] = table[b, c]
-                    us[k0 + kk, b, c] = u[b, c]
+                    yv[b, k0 + kk, c] = y[b, c]
+                    tb[b, k0 + kk, c] = table[b, c]
+                    us[b, k0 + kk, c] = u[b, c]
         # -- actuators (BatchElectronics.actuate)
         for b in range(nb):
             for c in range(3):
@@ -371,13 +371,13 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
                 last_pz[b, c] = v_pz[ch]
                 last_sat[b, c] = satv[ch]
                 if rec:
-                    sat_rec[k0 + kk, b, c] = satv[ch]
+                    sat_rec[b, k0 + kk, c] = satv[ch]
                 if orec:                    # open-loop record: everything after the period
-                    pz_rec[k0 + kk, b, c] = v_pz[ch]
-                    tb[k0 + kk, b, c] = table[b, c]
-                    yv[k0 + kk, b, c] = y[b, c]
-                    yu_rec[k0 + kk, b, c] = yu_ch[ch]
-                    cl_rec[k0 + kk, b, c] = cl_ch[ch]
+                    pz_rec[b, k0 + kk, c] = v_pz[ch]
+                    tb[b, k0 + kk, c] = table[b, c]
+                    yv[b, k0 + kk, c] = y[b, c]
+                    yu_rec[b, k0 + kk, c] = yu_ch[ch]
+                    cl_rec[b, k0 + kk, c] = cl_ch[ch]
 
 def _f(x):
     return np.ascontiguousarray(x, dtype=float)
@@ -433,12 +433,12 @@ def twin_open_loop(stage, u_V: np.ndarray):
     """:meth:`BatchTwinStage.run` (open loop) of ``u_V`` ``(N, B, 3)`` in the compiled loop.
 
     ``stage`` must be :func:`supported` (its gauge filter started). Returns the record
-    ``(piezo_V, saturated, table_um, reading_V, reading_um, clipped)``, each ``(N, B, 3)``.
+    ``(piezo_V, saturated, table_um, reading_V, reading_um, clipped)``, each ``(B, N, 3)`` (members first).
     """
     nb = stage.n
     n = u_V.shape[0]
-    pz, tb, yv, yu = (np.empty((n, nb, 3)) for _ in range(4))
-    sat, cl = np.empty((n, nb, 3), dtype=bool), np.empty((n, nb, 3), dtype=bool)
+    pz, tb, yv, yu = (np.empty((nb, n, 3)) for _ in range(4))
+    sat, cl = np.empty((nb, n, 3), dtype=bool), np.empty((nb, n, 3), dtype=bool)
     ctrl = (-1, np.zeros((1, 0, 0)), np.zeros((nb, 0)), 0, 0, False)
     _run(stage, ctrl, u_V, np.zeros((nb, 3)), True, (None, tb, None, sat), (True, pz, yv, yu, cl))
     return pz, sat, tb, yv, yu, cl
@@ -464,13 +464,13 @@ def twin_closed_loop(stage, ctrl, ref_V: np.ndarray, y_V: np.ndarray, record: bo
     -------
     y_V : ndarray, shape (B, 3)
         Reading after the last period.
-    record : tuple of four (N, B, 3) arrays or None
-        ``(y_V, table_um, u_V, saturated)``.
+    record : tuple of four (B, N, 3) arrays or None
+        ``(y_V, table_um, u_V, saturated)``, members first (each member's rows contiguous).
     """
     nb = stage.n
     n = ref_V.shape[0]
     if record:
-        recs = tuple(np.empty((n, nb, 3)) for _ in range(3)) + (np.empty((n, nb, 3), dtype=bool),)
+        recs = tuple(np.empty((nb, n, 3)) for _ in range(3)) + (np.empty((nb, n, 3), dtype=bool),)
     else:
         recs = (None, None, None, None)
     y = _run(stage, ctrl, ref_V, y_V, record, recs, (False, None, None, None, None))
