@@ -23,7 +23,7 @@ from nanosim.pipeline.config import CharacterizeConfig, DesignConfig, IdentifyCo
 
 __all__ = ["step_modes", "write_twin_npz", "step_identify", "step_design", "step_characterize", "step_report",
            "PIPELINE_STEPS", "run_pipeline", "characterize_batch", "modes_task", "design_task", "spawn_pool",
-           "stop_pool", "wait_result", "experiment_jobs", "experiments_names"]
+           "stop_pool", "wait_result", "experiment_specs", "experiment_jobs", "experiments_names"]
 
 
 def step_modes(out: Path, mjcf=None) -> None:
@@ -219,12 +219,12 @@ def wait_result(job):
     return job.get()
 
 
-def experiment_jobs(pool, run_dir: Path, seed: int, mjcf, *, twin_too: bool = True) -> list:
-    """Submit every registered experiment of one run folder as a pool task, the longest first.
+def experiment_specs(run_dir: Path, seed: int, mjcf, *, twin_too: bool = True) -> list:
+    """Every registered experiment of one run folder as a task, the longest first.
 
     One task per experiment and plant (MuJoCo, and the linear twin with ``twin_too``), each
     :func:`~nanosim.pipeline.characterize.experiment_task` (the batch engine, one member, the
-    numbers of ``characterize_batch``). Returns ``[(twin, name, job), ...]``.
+    numbers of ``characterize_batch``). Returns ``[(cost, twin, name, fn, args), ...]``.
     """
     from nanosim import experiments
     from nanosim.pipeline.characterize import experiment_task
@@ -235,8 +235,14 @@ def experiment_jobs(pool, run_dir: Path, seed: int, mjcf, *, twin_too: bool = Tr
     todo.sort(key=lambda t: -t[0])                # the twin runs about 3x faster than MuJoCo
     ctrl = str(Path(run_dir) / A.CONTROLLER_NPZ)
     mj = None if mjcf is None else str(mjcf)
-    return [(tw, n, pool.apply_async(experiment_task, (ctrl, str(Path(run_dir) / (A.TWIN_DIR if tw else "")), n,
-                                                       seed, mj, tw))) for _, tw, n in todo]
+    return [(c, tw, n, experiment_task, (ctrl, str(Path(run_dir) / (A.TWIN_DIR if tw else "")), n, seed, mj, tw))
+            for c, tw, n in todo]
+
+
+def experiment_jobs(pool, run_dir: Path, seed: int, mjcf, *, twin_too: bool = True) -> list:
+    """Submit :func:`experiment_specs` to ``pool``, the longest first; returns ``[(twin, name, job), ...]``."""
+    return [(tw, n, pool.apply_async(fn, args)) for _, tw, n, fn, args in
+            experiment_specs(run_dir, seed, mjcf, twin_too=twin_too)]
 
 
 def experiments_names() -> list:

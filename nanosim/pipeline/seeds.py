@@ -79,65 +79,87 @@ def _identify_task(seed_dir: str, ident_cfg, mjcf) -> float:
 def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
     """Every seed's identification, design and experiments as tasks on one process pool.
 
-    A seed's design is submitted when its identification is done, its experiments (one task
-    per experiment and plant, the longest first) when its design is done, so the workers stay
-    busy across seeds: one seed's design runs beside another seed's simulations. Each task runs
-    the code and seed of the single-seed pipeline, so every seed's numbers are those of
-    ``nanosim pipeline --seed s``. Returns the summed task seconds per kind.
+    A seed's design becomes ready when its identification is done, its experiments (one task
+    per experiment and plant) when its design is done. The pool gets one task per worker at a
+    time, the most urgent ready one first: designs (they unlock a seed's experiments), then
+    identifications, then experiments, the longest first; so the workers stay busy across
+    seeds (one seed's design beside another seed's simulations) and the last seed's
+    experiments are not left for the end. Each task runs the code and seed of the single-seed
+    pipeline, so every seed's numbers are those of ``nanosim pipeline --seed s``. Returns the
+    summed task seconds per kind.
     """
+    import heapq
+    import queue
+
     from nanosim.pipeline.characterize import write_task_metrics
-    from nanosim.pipeline.run import (design_task, experiment_jobs, experiments_names, spawn_pool, stop_pool,
-                                      wait_result)
+    from nanosim.pipeline.run import (design_task, experiment_specs, experiments_names, modes_task, spawn_pool,
+                                      stop_pool)
 
     mj = None if cfg.mjcf is None else str(cfg.mjcf)
     n_exp = len(experiments_names()) * (2 if cfg.characterize_twin_too else 1)
+    totals = {"modes": 0.0, "identify": 0.0, "design": 0.0, "characterize": 0.0, "characterize_twin": 0.0}
+    ready: list = []              # heap of (urgency, cost, order, kind, seed, fn, args)
+    order = iter(range(10 ** 9))
+
+    def push(urgency, cost, kind, seed, fn, args):
+        heapq.heappush(ready, (urgency, -cost, next(order), kind, seed, fn, args))
+
+    for s in seeds:
+        _seed_dir(out, s).mkdir(parents=True, exist_ok=True)
+    modes_dir = out / ".modes"          # computed once, then copied into every seed's folder
+    modes_dir.mkdir(parents=True, exist_ok=True)
+    push(-1, 0.0, "modes", seeds[0], modes_task, (str(modes_dir), mj))
+    for s in seeds:
+        icfg = IdentifyConfig(seed=s, order=cfg.identify.order, ideal=cfg.identify.ideal,
+                              operating_points_piezo_V=cfg.identify.operating_points_piezo_V)
+        push(1, 0.0, "identify", s, _identify_task, (str(_seed_dir(out, s)), icfg, mj))
+    parts = {s: {False: {}, True: {}} for s in seeds}
+    left = {s: n_exp for s in seeds}
+    finished: queue.SimpleQueue = queue.SimpleQueue()
     pool = spawn_pool(workers)
-    totals = {"identify": 0.0, "design": 0.0, "characterize": 0.0, "characterize_twin": 0.0}
+    running = 0
     try:
-        pending = []
-
-        def submit(kind, seed, fn, args):
-            job = pool.apply_async(fn, args)
-            pending.append((kind, seed, job))
-
-        for s in seeds:
-            icfg = IdentifyConfig(seed=s, order=cfg.identify.order, ideal=cfg.identify.ideal,
-                                  operating_points_piezo_V=cfg.identify.operating_points_piezo_V)
-            submit("identify", s, _identify_task, (str(_seed_dir(out, s)), icfg, mj))
-        parts = {s: {False: {}, True: {}} for s in seeds}
-        left = {s: n_exp for s in seeds}
-        while pending:
-            ready = [p for p in pending if p[2].ready()]
-            if not ready:
-                pending[0][2].wait(0.2)
+        while ready or running:
+            while ready and running < workers:
+                _, _, _, kind, s, fn, args = heapq.heappop(ready)
+                pool.apply_async(fn, args, callback=lambda r, k=kind, s=s: finished.put((k, s, r, None)),
+                                 error_callback=lambda e, k=kind, s=s: finished.put((k, s, None, e)))
+                running += 1
+            try:
+                kind, s, result, exc = finished.get(timeout=0.2)
+            except queue.Empty:
                 continue
-            for item in ready:
-                pending.remove(item)
-                kind, s, job = item
-                result = wait_result(job)
-                if kind == "identify":
-                    totals["identify"] += result
-                    submit("design", s, design_task, (str(_seed_dir(out, s)), cfg.design, mj))
-                elif kind == "design":
-                    totals["design"] += result
-                    say(f"seed {s}: identified and designed")
-                    for tw, _, j in experiment_jobs(pool, _seed_dir(out, s), s, mj,
-                                                    twin_too=cfg.characterize_twin_too):
-                        pending.append(("twin" if tw else "mujoco", s, j))
-                else:
-                    name, met, sec = result
-                    tw = kind == "twin"
-                    parts[s][tw][name] = (met, sec)
-                    totals["characterize_twin" if tw else "characterize"] += sec
-                    left[s] -= 1
-                    if left[s] == 0:
-                        write_task_metrics(_seed_dir(out, s), parts[s][False], s)
-                        if cfg.characterize_twin_too:
-                            write_task_metrics(_seed_dir(out, s) / A.TWIN_DIR, parts[s][True], s, twin=True)
-                        say(f"seed {s}: experiments done")
+            running -= 1
+            if exc is not None:
+                raise exc
+            if kind == "modes":
+                totals["modes"] += result
+                for other in seeds:
+                    shutil.copytree(modes_dir, _seed_dir(out, other), dirs_exist_ok=True)
+                shutil.rmtree(modes_dir)
+            elif kind == "identify":
+                totals["identify"] += result
+                push(0, 0.0, "design", s, design_task, (str(_seed_dir(out, s)), cfg.design, mj))
+            elif kind == "design":
+                totals["design"] += result
+                say(f"seed {s}: identified and designed")
+                for cost, tw, _, fn, args in experiment_specs(_seed_dir(out, s), s, mj,
+                                                              twin_too=cfg.characterize_twin_too):
+                    push(2, cost, "twin" if tw else "mujoco", s, fn, args)
+            else:
+                name, met, sec = result
+                tw = kind == "twin"
+                parts[s][tw][name] = (met, sec)
+                totals["characterize_twin" if tw else "characterize"] += sec
+                left[s] -= 1
+                if left[s] == 0:
+                    write_task_metrics(_seed_dir(out, s), parts[s][False], s)
+                    if cfg.characterize_twin_too:
+                        write_task_metrics(_seed_dir(out, s) / A.TWIN_DIR, parts[s][True], s, twin=True)
+                    say(f"seed {s}: experiments done")
     except BaseException:
         stop_pool(pool)        # Ctrl-C or a failed task: stop the workers now
-        pool = pending = job = item = ready = submit = None
+        pool = ready = finished = None
         gc.collect()           # release the pool's semaphores now
         raise
     pool.close()
@@ -149,11 +171,11 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
                        workers: int | None = None) -> dict:
     """Run the pipeline for every seed into ``out`` (normally a staging folder); returns ``seeds.json``.
 
-    The modes are computed once; every seed's identification, design and experiments are
-    tasks on one pool of worker processes (:func:`_schedule`).
+    The modes are computed once (copied into every seed's folder); they and every seed's
+    identification, design and experiments are tasks on one pool of worker processes
+    (:func:`_schedule`).
     """
     from nanosim.pipeline.report import pass_count, write_report
-    from nanosim.pipeline.run import step_modes
     from nanosim.pipeline.scaleout import cpu_workers
 
     cfg = config or PipelineConfig()
@@ -166,15 +188,8 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
 
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    first = _seed_dir(out, seeds[0])
-    first.mkdir(parents=True, exist_ok=True)
-    step_modes(first, cfg.mjcf)
-    for s in seeds[1:]:
-        shutil.copytree(first, _seed_dir(out, s), dirs_exist_ok=True)
-    timings["modes"] = round(time.perf_counter() - t, 2)
-    t = time.perf_counter()
     task_seconds = _schedule(out, seeds, cfg, max(1, min(2 * len(seeds), workers or cpu_workers())), say)
-    timings["identify_design_characterize"] = round(time.perf_counter() - t, 2)
+    timings["modes_identify_design_characterize"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()
     per_seed = {}
     for s in seeds:
