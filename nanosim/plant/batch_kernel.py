@@ -107,8 +107,8 @@ def _pairwise_columns(a, acc, out):
 
 @njit(cache=True)
 def _matvec(M, x, out):
-    """Set out = M @ x: the BLAS ``gemv`` numpy's stacked ``matmul`` makes for one member."""
-    out[:] = np.dot(M, x)
+    """Set out = M @ x: the BLAS ``gemv`` numpy's stacked ``matmul`` makes for one member (into ``out``)."""
+    np.dot(M, x, out)
 
 
 @njit(cache=True, error_model="numpy")
@@ -243,7 +243,8 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
     co = np.empty(p_out)
     xv = np.empty(nx + 3)
     XV = np.empty((nb if tmode == 2 else 0, nx + 3))
-    tall = np.empty((0, nx + 3))
+    tall = np.empty((nb if tmode == 2 else 0, nx + 3))
+    cout = np.empty((nb if cmode == 0 else 0, p_out))
     tout = np.empty(nx + 3)
     xn = np.empty(nx)
     tmp = np.empty(nx)
@@ -274,12 +275,12 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
         if cmode < 0:
             pass
         elif cmode == 0:                    # shared, xe @ M.T in one gemm
-            out = np.dot(xe, CM[0])
+            np.dot(xe, CM[0], cout)
             for b in range(nb):
                 for i in range(ns):
-                    xe[b, i] = out[b, i]
+                    xe[b, i] = cout[b, i]
                 for c in range(3):
-                    u[b, c] = out[b, ns + c]
+                    u[b, c] = cout[b, ns + c]
         else:
             for b in range(nb):
                 _matvec(CM[0] if cmode == 1 else CM[b], xe[b], co)
@@ -306,7 +307,7 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
                     XV[b, i] = tx[b, i]
                 for c in range(3):
                     XV[b, nx + c] = v_free[3 * b + c] / gain
-            tall = np.dot(XV, TP[0])
+            np.dot(XV, TP[0], tall)
         for b in range(nb):
             if tmode == 2:
                 for i in range(nx):
