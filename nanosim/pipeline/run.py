@@ -190,11 +190,37 @@ def modes_task(out: str, mjcf) -> float:
     return round(time.perf_counter() - t0, 2)
 
 
-def design_task(out: str, config: DesignConfig, mjcf) -> float:
-    """``step_design`` as a pool task; returns its wall time [s]."""
+def design_task(out: str, config: DesignConfig, mjcf, controller_ready=None) -> float:
+    """``step_design`` as a pool task; returns its wall time [s].
+
+    ``controller_ready`` (an ``Event``, e.g. a manager's): set when the design starts its
+    robustness analysis (:func:`nanosim.pipeline.design.write_robustness`), which analyses the
+    final ``controller.npz``; the figures and the analysis are then still to come. The caller
+    checks that ``controller.npz`` did not change after that (:func:`file_digest`).
+    """
+    from nanosim.pipeline import design as D
+
+    original = D.write_robustness
+
+    def signalling(*args, **kwargs):
+        controller_ready.set()
+        return original(*args, **kwargs)
+
+    if controller_ready is not None:
+        D.write_robustness = signalling
     t0 = time.perf_counter()
-    step_design(Path(out), config, mjcf=mjcf)
+    try:
+        step_design(Path(out), config, mjcf=mjcf)
+    finally:
+        D.write_robustness = original
     return round(time.perf_counter() - t0, 2)
+
+
+def file_digest(path) -> str:
+    """SHA-256 of a file's bytes."""
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def spawn_pool(workers: int):
@@ -285,12 +311,17 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
 
     t_start = time.perf_counter()
     mj = None if cfg.mjcf is None else str(cfg.mjcf)
-    pool = spawn_pool(min(2, os.cpu_count() or 1))
+    cores = min(2, os.cpu_count() or 1)
+    # one worker more than cores: the design's analysis and figures (after controller.npz is final)
+    # run beside the first experiments on the other workers
+    pool = spawn_pool(cores + 1 if cores > 1 else 1)
+    manager = multiprocessing.get_context("spawn").Manager()
     try:
+        ready = manager.Event()
         jobs = {"modes": pool.apply_async(modes_task, (str(out), mj))}
 
         def start_design(_path=None):
-            jobs["design"] = pool.apply_async(design_task, (str(out), cfg.design, mj))
+            jobs["design"] = pool.apply_async(design_task, (str(out), cfg.design, mj, ready))
 
         if bar:
             bar.set_postfix_str("running identify, modes")
@@ -300,11 +331,19 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
         if "design" not in jobs:
             start_design()
         done("modes", wait_result(jobs["modes"]), "design")
-        done("design", wait_result(jobs["design"]), "characterize")
+        while not (ready.is_set() or jobs["design"].ready()):
+            jobs["design"].wait(0.1)
+        if jobs["design"].ready():
+            jobs["design"].get()          # a failed design raises here
         t0 = time.perf_counter()
+        digest = file_digest(out / A.CONTROLLER_NPZ)
+        exp_jobs = experiment_jobs(pool, out, cfg.seed, mj, twin_too=twin_too)
+        done("design", wait_result(jobs["design"]), "characterize")
+        if file_digest(out / A.CONTROLLER_NPZ) != digest:     # not the analysed controller: run them again
+            exp_jobs = experiment_jobs(pool, out, cfg.seed, mj, twin_too=twin_too)
         parts: dict = {False: {}, True: {}}
         left = {False: len(experiments_names()), True: len(experiments_names()) if twin_too else 0}
-        for tw, _, job in experiment_jobs(pool, out, cfg.seed, mj, twin_too=twin_too):
+        for tw, _, job in exp_jobs:
             name, met, sec = wait_result(job)
             parts[tw][name] = (met, sec)
             left[tw] -= 1
@@ -312,9 +351,11 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
                 done("characterize_twin" if tw else "characterize", round(time.perf_counter() - t0, 2))
     except BaseException:
         stop_pool(pool)       # Ctrl-C or a failed step: stop the workers now, do not wait for them
-        pool = jobs = job = start_design = None
+        manager.shutdown()
+        pool = jobs = job = exp_jobs = start_design = ready = manager = None
         gc.collect()
         raise
+    manager.shutdown()
     pool.close()
     pool.join()
     from nanosim.pipeline.characterize import write_task_metrics
