@@ -23,7 +23,7 @@ from nanosim.pipeline.config import CharacterizeConfig, DesignConfig, IdentifyCo
 
 __all__ = ["step_modes", "write_twin_npz", "step_identify", "step_design", "step_characterize", "step_report",
            "PIPELINE_STEPS", "run_pipeline", "characterize_batch", "modes_task", "design_task", "spawn_pool",
-           "stop_pool", "wait_result", "experiment_specs", "experiment_jobs", "experiments_names"]
+           "stop_pool", "wait_result", "experiment_specs", "experiment_jobs", "experiments_names", "file_digest"]
 
 
 def step_modes(out: Path, mjcf=None) -> None:
