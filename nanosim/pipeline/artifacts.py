@@ -59,7 +59,7 @@ SCORECARD_JSON = "scorecard.json"
 SCORECARD_MD = "scorecard.md"
 SCORECARD_HTML = "scorecard.html"
 COMPARE_FIGURES: tuple[tuple[str, str], ...] = (
-    ("compare_loops.png", "sigma_max of S_o and T_o, identified model with the one-sample delay"),
+    ("compare_loops.png", "sigma_max of S_o and T_o, identified model (the loop as run)"),
     ("compare_step.png", "2 um step, first seed"),
     ("compare_contour.png", "Contour error at 1000 um/s, first seed"),
     ("compare_psd.png", "Closed-loop PSD of the X reading at rest, first seed"),

@@ -88,7 +88,7 @@ METRICS: tuple[Metric, ...] = (
     Metric("small_steps_max_error_nm", "10 nm staircase, largest plateau error", "nm", False),
     Metric("hysteresis_closed_loop_nm", "closed-loop hysteresis", "nm", False),
     Metric("creep_closed_loop_drift_nm", "closed-loop creep drift", "nm", False),
-    Metric("multiloop_disk_margin", "multiloop disk margin alpha (identified model, 1-sample delay)", "", True, 0.4,
+    Metric("multiloop_disk_margin", "multiloop disk margin alpha (identified model = the loop as run)", "", True, 0.4,
            per_seed=False),
     Metric("disk_margin_input_output", "disk margin alpha, inputs and outputs at once", "", True, per_seed=False),
     Metric("multiloop_disk_margin_twin", "multiloop disk margin alpha (linear twin, 1-sample delay)", "", True,

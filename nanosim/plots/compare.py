@@ -40,7 +40,7 @@ def fig_compare_loops(responses: dict):
     axs[0, 0].set_ylim(-60, 15)
     axs[0, 1].set_ylim(-60, 15)
     axs[0, 0].legend(fontsize=8)
-    fig.suptitle("Feedback loops on the identified model with the one-sample delay")
+    fig.suptitle("Feedback loops on the identified model (the loop as run)")
     return fig
 
 
