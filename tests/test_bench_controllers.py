@@ -238,3 +238,13 @@ def test_viewer_switches_bench_controllers_live_without_a_kick(designs, model):
         jumps[how] = (np.abs(s2.u_V - u_before).max(), np.abs(np.array(y) - 1.0).max())
     assert jumps["bumpless"][1] < 0.05                       # stays within 50 nm of 1 um
     assert jumps["bumpless"][1] < 0.2 * jumps["reset_at"][1]
+
+
+def test_scorecard_reads_an_unstable_centre_loop_as_mu_infinite():
+    # robustness.json writes mu_peak null when a centre loop of the set is unstable
+    from nanosim.pipeline.scorecard import METRICS, robustness_metrics
+    bad = robustness_metrics({"plants": {"identified": {"mu_peak": None, "mu_centre_stable": False}}})
+    good = robustness_metrics({"plants": {"identified": {"mu_peak": 0.8, "mu_centre_stable": True}}})
+    mu = next(m for m in METRICS if m.key == "mu_peak")
+    assert bad["mu_peak"] == float("inf") and mu.passes(bad["mu_peak"]) is False
+    assert good["mu_peak"] == 0.8 and mu.passes(good["mu_peak"]) is True
