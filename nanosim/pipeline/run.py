@@ -319,9 +319,27 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     try:
         ready = manager.Event()
         jobs = {"modes": pool.apply_async(modes_task, (str(out), mj))}
+        launched: dict = {}
+
+        def launch_experiments():
+            # a thread: the experiments start as soon as the controller is final, while the main
+            # thread is still identifying the second operating point
+            try:
+                while not (ready.is_set() or jobs["design"].ready()):
+                    jobs["design"].wait(0.1)
+                if jobs["design"].ready() and not jobs["design"].successful():
+                    return                    # the main thread raises the design's error
+                launched["t0"] = time.perf_counter()
+                launched["digest"] = file_digest(out / A.CONTROLLER_NPZ)
+                launched["jobs"] = experiment_jobs(pool, out, cfg.seed, mj, twin_too=twin_too)
+            except BaseException as exc:  # noqa: BLE001  (handed to the main thread)
+                launched["error"] = exc
+
+        launcher = threading.Thread(target=launch_experiments, daemon=True, name="launch-experiments")
 
         def start_design(_path=None):
             jobs["design"] = pool.apply_async(design_task, (str(out), cfg.design, mj, ready))
+            launcher.start()
 
         if bar:
             bar.set_postfix_str("running identify, modes")
@@ -331,13 +349,13 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
         if "design" not in jobs:
             start_design()
         done("modes", wait_result(jobs["modes"]), "design")
-        while not (ready.is_set() or jobs["design"].ready()):
-            jobs["design"].wait(0.1)
-        if jobs["design"].ready():
-            jobs["design"].get()          # a failed design raises here
-        t0 = time.perf_counter()
-        digest = file_digest(out / A.CONTROLLER_NPZ)
-        exp_jobs = experiment_jobs(pool, out, cfg.seed, mj, twin_too=twin_too)
+        while launcher.is_alive():
+            launcher.join(0.2)
+        if "error" in launched:
+            raise launched["error"]
+        if "jobs" not in launched:
+            jobs["design"].get()          # the design failed: raise its error
+        t0, digest, exp_jobs = launched["t0"], launched["digest"], launched["jobs"]
         done("design", wait_result(jobs["design"]), "characterize")
         if file_digest(out / A.CONTROLLER_NPZ) != digest:     # not the analysed controller: run them again
             exp_jobs = experiment_jobs(pool, out, cfg.seed, mj, twin_too=twin_too)
@@ -352,7 +370,7 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     except BaseException:
         stop_pool(pool)       # Ctrl-C or a failed step: stop the workers now, do not wait for them
         manager.shutdown()
-        pool = jobs = job = exp_jobs = start_design = ready = manager = None
+        pool = jobs = job = exp_jobs = start_design = ready = manager = launched = launcher = None
         gc.collect()
         raise
     manager.shutdown()
