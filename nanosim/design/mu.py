@@ -6,9 +6,9 @@ scalar.  Repeated scalar blocks are not supported.  Used by the multiloop disk m
 (:mod:`~nanosim.design.margins`) and the robust-stability test over the stage's
 uncertainty set (:mod:`~nanosim.design.uncertainty`).
 
-:func:`mixed_mu_upper_bound` handles structures of independent *scalar* blocks, each real
-or complex (real parameters such as a modal frequency; complex ones such as a delay
-disk), with the D-G scalings of Fan, Tits & Doyle (IEEE TAC 36(1), 1991), used by
+:func:`mixed_mu_upper_bound` handles structures of scalar blocks, independent or
+repeated, each real or complex (real parameters such as a modal frequency; complex ones
+such as a delay disk), with the D-G scalings of Fan, Tits & Doyle (IEEE TAC 36(1), 1991), used by
 :mod:`~nanosim.design.parametric`.
 """
 from __future__ import annotations
@@ -519,7 +519,7 @@ def _check_real(real, n: int) -> np.ndarray:
 
 
 def mixed_mu_upper_bound(M, real, *, groups=None, peak_only: bool = False, floor=None) -> MixedMuBounds:
-    """Upper bound of the mixed structured singular value for independent scalar blocks.
+    """Upper bound of the mixed structured singular value for scalar blocks (independent or repeated).
 
     ``Delta = diag(delta_1 ... delta_n)`` with ``delta_i`` real where ``real[i]`` and
     complex elsewhere.  With ``D = diag(d) > 0`` and real diagonal ``G`` (zero on the
@@ -540,10 +540,12 @@ def mixed_mu_upper_bound(M, real, *, groups=None, peak_only: bool = False, floor
         Entries with the same label form one *repeated* scalar block ``delta I``
         (same kind; full ``D`` and ``G`` blocks there).  Default: every entry its own block.
     peak_only : bool
-        Optimise D and G only where the complex bound exceeds the largest mixed bound
-        found so far (in decreasing order of the complex bound); elsewhere ``upper``
-        is the complex bound (valid, and below the peak).  ``max(upper)`` is the same
-        as without screening.
+        Screen for the peak: a short optimisation with every entry an independent scalar
+        (a larger set, so a valid bound) at each frequency whose complex bound exceeds
+        ``floor``, each started from its neighbour's scalings; then the full structure in
+        decreasing order of that screen until it falls below the largest bound found.
+        Elsewhere ``upper`` is the screen's value (valid, and below the peak).  Without
+        it every frequency gets the full, slower optimisation.
     floor : float or None
         With ``peak_only``: a value the peak is known to reach.
 

@@ -20,15 +20,18 @@ Modes (real scalars, two per perturbed eigenvalue)
     lambda)`` as in :func:`~nanosim.design.uncertainty.perturbed_plant` (each mode keeps
     its static gain), which keeps the LFT exact:
     ``x+ = lambda0 x + b0 u + (lambda' - lambda0) (x - q u)``, ``q = b / (1 - lambda)``.
-    A real pole gets one real parameter on ``exp(s freq_scale dt)``.  Every eigenvalue
-    has its own parameters (a superset of the common scaling of the sampled check: the
-    bound is conservative there, never optimistic); the pair members of a mode are
-    independent too (again a superset).
+    A real pole gets one real parameter on ``exp(s freq_scale dt)``.  Each physical mode
+    has its own two parameters, shared (repeated) by both members of its pair and by its
+    per-column copies (:func:`parametric_lft`); distinct modes move independently (a
+    superset of the common scaling of the sampled check: conservative there, never
+    optimistic).
 Piezo gain (real scalar per input)
     ``c (1 + r delta_g)``, ``c`` the centre and ``r`` the relative radius of the range.
-Computation delay (complex scalar per input)
+Computation delay (complex scalar, repeated over the inputs)
     ``z^-d`` for ``d`` in ``{d_lo, d_hi}`` (``d_hi - d_lo <= 1``) lies on the disk of
     centre ``(z^-d_lo + z^-d_hi) / 2`` and radius ``|z^-d_lo - z^-d_hi| / 2``.
+    :func:`robust_stability_mixed_mu` does not use the disk: it analyses each integer
+    delay exactly, one LFT per delay.
 
 The centre loop (every ``delta = 0``) must be stable (checked in state space); then
 ``mu(M(e^{j w dt})) < 1`` at every frequency proves robust stability.  The frequency
@@ -43,7 +46,7 @@ import control as ct
 import numpy as np
 import scipy.linalg
 
-from nanosim.design.loopargs import check_int, check_range, describe, is_lti
+from nanosim.design.loopargs import check_freq, check_int, check_range, describe, is_lti
 from nanosim.design.loopresponse import (
     closed_loop_matrix,
     feedback_operator_ss,
@@ -52,7 +55,7 @@ from nanosim.design.loopresponse import (
     to_state_space,
 )
 from nanosim.design.margins import refine_mu_peak
-from nanosim.design.mu import MixedMuBounds, mixed_mu_upper_bound
+from nanosim.design.mu import mixed_mu_upper_bound
 from nanosim.design.uncertainty import ModalPlant
 
 SAME_MODE_REL = 0.003
@@ -321,9 +324,9 @@ def parametric_lft(G, *, input_gain_range=(0.75, 1.0), freq_scale_range=(0.97, 1
     -----
     An identified model holds each physical mode once per identified column (three
     eigenvalues within a few 0.01 % of each other).  Eigenvalues whose natural
-    frequencies lie within :data:`SAME_MODE_REL` of each other (same sign of the
-    imaginary part) are one physical mode: their radial parameters are one repeated
-    real parameter, and so are their tangential ones.  Distinct modes of the stage are
+    frequencies lie within :data:`SAME_MODE_REL` of each other, both members of each
+    pair included, are one physical mode: their radial parameters are one repeated real
+    parameter, and so are their tangential ones.  Distinct modes of the stage are
     at least 1.5 % apart (the XY split), and each moves on its own.
     """
     if not is_lti(G):
@@ -343,16 +346,14 @@ def parametric_lft(G, *, input_gain_range=(0.75, 1.0), freq_scale_range=(0.97, 1
     pert = np.flatnonzero(kind > 0)
     rest = np.flatnonzero(kind == 0)
     lam0, b0, q, coef, owner, labels, bands, groups = [], [], [], [], [], [], [], []
-    clusters: list[tuple[float, float, int]] = []          # (w_n, sign, label)
+    clusters: list[tuple[float, int]] = []                 # (w_n, label) of each physical mode
     for j, k in enumerate(pert):
         lam, s, bk = mp.lam[k], mp.s[k], mp.VinvB[k]
         if kind[k] == 1:
-            sign = 1.0
-            lab = next((c[2] for c in clusters if c[1] == sign and abs(abs(s) - c[0]) <= SAME_MODE_REL * c[0]),
-                       None)
+            lab = next((c[1] for c in clusters if abs(abs(s) - c[0]) <= SAME_MODE_REL * c[0]), None)
             if lab is None:
                 lab = 2 * len(clusters)
-                clusters.append((abs(s), sign, lab))
+                clusters.append((abs(s), lab))
             groups += [lab, lab + 1]
             lam_c, m, a, b, band = _sector(s, fr, zr, dt)
             l0 = lam_c * m
@@ -440,7 +441,9 @@ class MixedRobustStabilityResult:
     Attributes
     ----------
     mu_peak : float
-        Peak over frequency of the mixed-mu upper bound (refined between grid points).
+        Peak over frequency of the mixed-mu upper bound (on the grid, or refined between
+        grid points with ``refine``), the worst over the set's delays; ``inf`` when a
+        centre loop is unstable.
         ``centre_stable and mu_peak < 1`` proves stability for every plant of the set.
     mu_peak_freq_hz : float
     freq_hz, mu_upper, complex_upper : ndarray, shape (F,)
@@ -526,10 +529,10 @@ def robust_stability_mixed_mu(G_nominal, K, Ky, freq_hz, *, input_gain_range=(0.
     lft = lfts[0]
     dt = lft.dt
     nyq = 0.5 / dt
-    f0 = np.asarray(freq_hz, dtype=float).ravel()
-    if f0.size == 0 or not np.all(np.isfinite(f0)) or f0.min() <= 0 or f0.max() > nyq * (1 + 1e-12):
-        raise ValueError(f"freq_hz: expected positive frequencies up to the Nyquist frequency {nyq:g} Hz, got "
-                         f"{f0.size} values in [{f0.min() if f0.size else 'nan'}, {f0.max() if f0.size else 'nan'}]")
+    f0 = check_freq(freq_hz, "discrete", dt)
+    if f0.min() <= 0:
+        raise ValueError(f"freq_hz: expected positive frequencies (a controller integrator is infinite at 0 Hz), "
+                         f"got min {f0.min()!r}")
     f = np.unique(np.concatenate([f0, mode_band_grid(lft, n_per_band)]))
     f = f[(f > 0) & (f <= nyq)]
     Ks = to_state_space(K, dt, "K")
@@ -559,8 +562,7 @@ def robust_stability_mixed_mu(G_nominal, K, Ky, freq_hz, *, input_gain_range=(0.
             p1, f1 = float(mb.upper[i]), float(f[i])
         if p1 > pk:
             pk, fpk = p1, f1
-    mb = MixedMuBounds(upper, cupper, lft.real, np.ones(f.size, bool))
-    out = [f, np.array(mb.upper), np.array(mb.complex_upper)]
+    out = [f, upper, cupper]
     for a in out:
         a.setflags(write=False)
     return MixedRobustStabilityResult(mu_peak=float(pk), mu_peak_freq_hz=float(fpk), freq_hz=out[0],
