@@ -23,6 +23,7 @@ from .fit import fit_percent
 from .freq import H1Estimate, frequency_response, h1_estimate
 from .modal import Modes, continuous_poles, modes_from_model
 from .signals import Excitation, Spectrum, paper_excitation, prbs, prbs_hold_samples, signal_spectrum
+from .shared_poles import SharedPoles, refine_shared_poles, shared_pole_groups
 from .simulation import estimate_x0, predict, simulate
 from .subspace import IdentifiedModel, default_horizon, select_order, subspace_id
 
@@ -51,4 +52,7 @@ __all__ = [
     "modes_from_model",
     "continuous_poles",
     "Modes",
+    "refine_shared_poles",
+    "shared_pole_groups",
+    "SharedPoles",
 ]

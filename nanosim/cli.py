@@ -114,7 +114,7 @@ def _cmd_identify(args) -> int:
     from nanosim.pipeline.run import step_identify
     from nanosim.pipeline.runfolder import staged_run
 
-    cfg = IdentifyConfig(seed=args.seed, order=args.order, ideal=args.ideal)
+    cfg = IdentifyConfig(seed=args.seed, order=args.order, ideal=args.ideal, shared_poles=args.shared_poles)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
         _say("simulating the identification experiments (3 actuators x 2 records, 2 operating points)")
@@ -328,6 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"states per 3x1 column (default {PAPER_IDENTIFIED_ORDER_PER_COLUMN}, the paper's; "
                         "0: choose from the singular values)")
     i.add_argument("--ideal", action="store_true", help="every electromechanical effect off")
+    i.add_argument("--per-column-poles", dest="shared_poles", action="store_false",
+                   help="keep each column's own estimate of every mode, as the paper (default: the modes the "
+                        "columns share re-estimated jointly, one pole per mode)")
     i.add_argument("--mjcf", default=None, type=_file)
     i.set_defaults(func=_cmd_identify)
     d = sub.add_parser("design", help="reduce the model and synthesize the H-infinity controller")

@@ -48,12 +48,16 @@ class IdentifyConfig:
         Every electromechanical effect off.
     operating_points_piezo_V : tuple of float
         Piezo-volt offsets at which a model is identified (paper Fig. 7: 0 V and 80 V).
+    shared_poles : bool
+        Re-estimate the resonances the columns share jointly, one pole per mode (default);
+        False keeps each column's own estimate, as the paper.
     """
 
     seed: int = 0
     order: int | None = PAPER_IDENTIFIED_ORDER_PER_COLUMN
     ideal: bool = False
     operating_points_piezo_V: tuple = (0.0, 80.0)
+    shared_poles: bool = True
 
     def __post_init__(self):
         _check_seed(self.seed)

@@ -6,6 +6,8 @@ a run folder is complete or untouched.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import gc
 import multiprocessing
 import os
@@ -291,9 +293,7 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     cfg = config or PipelineConfig()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    ident_cfg = cfg.identify if cfg.identify.seed == cfg.seed else IdentifyConfig(
-        seed=cfg.seed, order=cfg.identify.order, ideal=cfg.identify.ideal,
-        operating_points_piezo_V=cfg.identify.operating_points_piezo_V)
+    ident_cfg = dataclasses.replace(cfg.identify, seed=cfg.seed)
     names = [n for n in PIPELINE_STEPS if n != "characterize_twin" or cfg.characterize_twin_too]
     twin_too = "characterize_twin" in names
     timings: dict[str, float] = {}

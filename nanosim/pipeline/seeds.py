@@ -19,6 +19,8 @@ What is shared or scheduled together:
 """
 from __future__ import annotations
 
+import dataclasses
+
 import gc
 import json
 import math
@@ -31,7 +33,7 @@ import numpy as np
 
 from nanosim.fileio import write_json, write_text
 from nanosim.pipeline import artifacts as A
-from nanosim.pipeline.config import IdentifyConfig, PipelineConfig
+from nanosim.pipeline.config import PipelineConfig
 
 __all__ = ["parse_seeds", "run_pipeline_seeds", "SEEDS_JSON"]
 
@@ -110,8 +112,7 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
     modes_dir.mkdir(parents=True, exist_ok=True)
     push(-1, 0.0, "modes", seeds[0], modes_task, (str(modes_dir), mj))
     for s in seeds:
-        icfg = IdentifyConfig(seed=s, order=cfg.identify.order, ideal=cfg.identify.ideal,
-                              operating_points_piezo_V=cfg.identify.operating_points_piezo_V)
+        icfg = dataclasses.replace(cfg.identify, seed=s)
         push(1, 0.0, "identify", s, _identify_task, (str(_seed_dir(out, s)), icfg, mj))
     parts = {s: {False: {}, True: {}} for s in seeds}
     left = {s: n_exp for s in seeds}
