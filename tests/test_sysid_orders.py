@@ -16,6 +16,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import identification as ident
+
 from nanosim.experiments.sysid import (IdentifySettings, identify_stage, merged_modes, unshared_resonances_hz,
                                        without_resonances)
 from nanosim.plant.mjcf import load_model
@@ -80,12 +82,22 @@ def scipy_block_diag(*m):
 
 @pytest.mark.slow
 def test_identified_modes_are_the_stages_and_no_column_has_its_own():
-    res = identify_stage(IdentifySettings(seed=0))
+    # seed 1: actuator C's own estimate of the 462/472 Hz pair is 0.4 % / 0.7 % high with zeta 0.013
+    res = identify_stage(IdentifySettings(seed=1))
     assert unshared_resonances_hz(res.columns) == [[], [], []]
-    truth = [m.freq_hz for m in modal_analysis(load_model()).below(1000.0)]
+    truth = modal_analysis(load_model()).below(1000.0)
     found = [m["freq_hz"] for m in merged_modes(res) if m["seen_in_columns"] >= 2]
     for g in found:                          # every resonance two columns share is one of MuJoCo's, within 1 %
-        assert min(abs(g - f) / f for f in truth) < 0.01, (g, truth)
-    for f in truth[:5]:                      # and the five strongly driven ones are all there
-        assert min(abs(g - f) / f for g in found) < 0.01, (f, found)
+        assert min(abs(g - m.freq_hz) / m.freq_hz for m in truth) < 0.01, (g, truth)
+    for m in truth[:5]:                      # and the five strongly driven ones are all there
+        assert min(abs(g - m.freq_hz) / m.freq_hz for g in found) < 0.01, (m.freq_hz, found)
     assert np.all(res.fit_percent > 95.0)
+    # one pole per shared mode, every column the same: within 0.05 % of MuJoCo's frequency, 10 % of its damping
+    sh = res.shared
+    assert sh is not None and len(sh.freq_hz) >= 5
+    for f, z in zip(sh.freq_hz, sh.damping):
+        m = min(truth, key=lambda m: abs(m.freq_hz - f))
+        assert abs(f / m.freq_hz - 1) < 5e-4 and abs(z / m.damping_ratio - 1) < 0.1, (f, z, m.freq_hz, m.damping_ratio)
+    for col in res.columns:
+        fc = ident.modes_from_model(col.A, col.dt_s).freq_hz
+        assert all(np.min(np.abs(fc - f)) < 1e-9 * f for f in sh.freq_hz if np.min(np.abs(fc - f)) < 0.01 * f)
