@@ -77,7 +77,7 @@ def test_lqg_damps_a_lightly_damped_mode_through_the_delay(delay):
 
 
 def test_lqg_on_the_identified_model_margin_bandwidth_and_dac_noise(model):
-    d = design_lqg(model)
+    d = design_lqg(model, robust=False)
     Ke, Ky = d.split()
     f = analysis_grid_hz(DT_S, n=400)
     Gf = freqresp_z(model, f)
@@ -103,13 +103,13 @@ def test_design_config_exports_lqg_by_default_and_the_paper_design_stays_hinf():
         DesignConfig(architecture="pid")
 
 
-def test_default_lqg_vertex_check_records_the_known_corner(model):
+def test_nominal_lqg_vertex_check_records_the_known_corner(model):
     """Brute force over STAGE_UNCERTAINTY (96 plants): every plant without the extra sample is stable;
-    the default misses at modes +3 % with one extra sample (the 462/472 Hz group's upper crossing,
+    the nominal rule misses at modes +3 % with one extra sample (the 462/472 Hz group's upper crossing,
     module docstring), by under 3 % in spectral radius; the recorded worst is the loop closed by hand."""
     from nanosim.design.architectures.common import uncertainty_vertex_check
     from nanosim.design.uncertainty import ModalPlant, UncertaintySet
-    d = design_lqg(model)
+    d = design_lqg(model, robust=False)
     Ke, Ky = d.split()
     v = d.parameters["uncertainty_vertices"]
     assert v["n_checked"] == 2 ** 6 + 32
@@ -124,22 +124,26 @@ def test_default_lqg_vertex_check_records_the_known_corner(model):
 
 
 def test_robust_lqg_is_stable_over_the_whole_uncertainty_set_with_the_disk_margin(model):
-    """The robust rule on the identified seed-0 model: all 96 plants stable, the small-signal gain
-    (1.75 x) stable, multiloop disk margin >= 0.45 on an independent grid, bandwidth >= 32 Hz."""
-    from nanosim.design.architectures.lqg import SMALL_SIGNAL_GAIN
-    from nanosim.design.uncertainty import ModalPlant
-    d = design_lqg(model, robust=True)
+    """The default (robust) rule on the identified seed-0 model: all 96 plants stable, mixed mu < 1 over the set,
+    multiloop disk margin >= 0.42 on an independent grid, bandwidth >= 32 Hz; every cheaper member it passed
+    over failed one of its checks."""
+    from nanosim.design.architectures.lqg import ROBUST_MIN_DISK_MARGIN
+    d = design_lqg(model)
     p = d.parameters
-    assert p["rule"] == "robust" and p["design_freq_scale"] == pytest.approx(1.03)
+    assert p["rule"] == "robust" and p["design_freq_scale"] >= 1.03
     v = p["uncertainty_vertices"]
     assert v["all_stable"] and v["n_unstable"] == 0 and v["worst_spectral_radius"] < 1.0, v
+    assert p["mu_peak"] < 1.0
     Ke, Ky = d.split()
-    Pup = ModalPlant(model, DT_S).state_space(1.0, 1.0, SMALL_SIGNAL_GAIN, 0)
-    assert closed_loop_spectral_radius(Pup, Ke, Ky, 0) < 1.0
     f = np.unique(np.concatenate([np.geomspace(0.1, 1999.0, 900), np.linspace(440, 520, 400)]))
     r = loop_response(freqresp_z(model, f), f, Ke, Ky, delay_samples=0)
-    assert disk_margin_summary(r)["multiloop"] >= 0.45
+    assert disk_margin_summary(r)["multiloop"] >= ROBUST_MIN_DISK_MARGIN - 0.005
     assert p["predicted_bandwidth_S_hz"] >= 32.0
+    for row in p["tried"]:
+        if row["predicted_sigma_nm"] >= p["predicted_noise_sigma_nm"]:
+            continue
+        assert (row["spectral_radius"] >= 1.0 or row["multiloop_disk_margin"] < ROBUST_MIN_DISK_MARGIN
+                or row["worst_spectral_radius"] >= 1.0 or row["mu_peak"] >= 1.0), row
 
 
 def test_shifted_modes_moves_only_the_modes_above_300_hz_and_keeps_each_dc_gain(model):
