@@ -8,8 +8,9 @@ criterion (on the worst case over the seeds) and the robustness figures;
 The default rule (README, "Controller bench")
 ---------------------------------------------
 Among the bench designs, the default is the one that meets the most acceptance
-criteria on every seed (worst case over the seeds); a tie goes to the larger
-worst-case multiloop disk margin, then to the higher worst-case feedback S bandwidth.
+criteria on every seed (worst case over the seeds); a tie goes to the design that
+is robustly stable over the uncertainty set (mu < 1), then to the larger worst-case
+multiloop disk margin, then to the higher worst-case feedback S bandwidth.
 """
 from __future__ import annotations
 
@@ -100,8 +101,9 @@ METRICS: tuple[Metric, ...] = (
 ACCEPTANCE: tuple[str, ...] = tuple(m.key for m in METRICS if m.target is not None)
 DEFAULT_RULE = ("Among the bench designs, the default is the one that meets the most of the issue's acceptance "
                 "criteria on every seed (worst case over the seeds; the S bandwidth counts twice, reference to error "
-                "and the feedback loop's); a tie goes to the larger worst-case multiloop disk margin, then to the "
-                "higher worst-case feedback S bandwidth.")
+                "and the feedback loop's); a tie goes to the design that is robustly stable over the uncertainty set "
+                "(mu < 1), then to the larger worst-case multiloop disk margin, then to the higher worst-case "
+                "feedback S bandwidth.")
 _BY_KEY = {m.key: m for m in METRICS}
 
 
@@ -242,7 +244,10 @@ def choose_default(doc: dict) -> tuple[str | None, str]:
     def w(c, key):
         v = c["summary"][key]["worst"]
         return -math.inf if v is None else v
-    key = lambda nc: (nc[1]["acceptance_met"], w(nc[1], "multiloop_disk_margin"),  # noqa: E731
+    def robust(c):
+        mu = c["summary"]["mu_peak"]["worst"]
+        return mu is not None and mu < 1.0
+    key = lambda nc: (nc[1]["acceptance_met"], robust(nc[1]), w(nc[1], "multiloop_disk_margin"),  # noqa: E731
                       w(nc[1], "bandwidth_S_feedback_hz"))
     best = max(cands, key=key)
     c = best[1]

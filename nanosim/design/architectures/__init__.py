@@ -9,7 +9,9 @@
 * ``damping-tracking`` (:mod:`.damping_tracking`) -- positive position feedback plus integral tracking;
 * ``robust`` (:mod:`.robust`) -- Glover-McFarlane H-infinity loop shaping against the stage's uncertainty set;
 * ``feedforward`` (:mod:`.feedforward`) -- model-inversion feedforward on top of a feedback design;
-* ``lqg`` (:mod:`.lqg`) -- H2-optimal output feedback with integral action from the stage's noise levels.
+* ``lqg`` (:mod:`.lqg`) -- H2-optimal output feedback with integral action from the stage's noise levels,
+  robust over the uncertainty set; ``lqg-nominal`` -- the same designed on the identified modes (not robust
+  to one extra sample of delay with the modes 3 % higher).
 
 :mod:`.protocol` turns a name, a file or ``module:function`` into a controller.
 """
@@ -52,6 +54,13 @@ def _lqg(G, **kw):
     return design_lqg(G, **kw)
 
 
+def _lqg_nominal(G, **kw):
+    import dataclasses
+
+    from nanosim.design.architectures.lqg import design_lqg
+    return dataclasses.replace(design_lqg(G, robust=False, **kw), name="lqg-nominal")
+
+
 def _feedforward(G, **kw):
     from nanosim.design.architectures.feedforward import design_feedforward
     return design_feedforward(G, **kw)
@@ -66,6 +75,7 @@ BENCH: dict[str, Callable[..., BenchDesign]] = {
     "robust": _robust,
     "feedforward": _feedforward,
     "lqg": _lqg,
+    "lqg-nominal": _lqg_nominal,
 }
 
 

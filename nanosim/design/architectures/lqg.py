@@ -304,7 +304,7 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
         rule uses :data:`ROBUST_MIN_DISK_MARGIN`.
     robust : bool
         True (the exported default, :data:`ROBUST_TUNING_RULE`): the members of :data:`ROBUST_LADDER` (design
-        modes above :data:`SHIFT_ABOVE_HZ` at x1.03-1.05, measurement inflation 2-5, ``R_u`` =
+        modes above :data:`SHIFT_ABOVE_HZ` at x1.03-1.05, measurement inflation 2.5-5, ``R_u`` =
         :data:`CONTROL_WEIGHT`) in the order of their predicted noise sigma; the first with a multiloop disk
         margin >= :data:`ROBUST_MIN_DISK_MARGIN`, stable at every vertex and sample of the uncertainty set, and a
         mixed-mu upper bound below :data:`ROBUST_MU_MAX` over it (else the checked member with the least mu).
