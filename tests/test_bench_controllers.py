@@ -248,3 +248,19 @@ def test_scorecard_reads_an_unstable_centre_loop_as_mu_infinite():
     mu = next(m for m in METRICS if m.key == "mu_peak")
     assert bad["mu_peak"] == float("inf") and mu.passes(bad["mu_peak"]) is False
     assert good["mu_peak"] == 0.8 and mu.passes(good["mu_peak"]) is True
+
+
+def test_default_rule_counts_criteria_then_prefers_robust_stability_then_disk_margin():
+    from nanosim.pipeline.scorecard import choose_default
+
+    def ctrl(met, mu, dm, bw=40.0, source="bench"):
+        s = {"mu_peak": {"worst": mu}, "multiloop_disk_margin": {"worst": dm}, "bandwidth_S_feedback_hz": {"worst": bw}}
+        return {"source": source, "acceptance_met": met, "acceptance_total": 8, "summary": s,
+                "acceptance": {"mu_peak": {"pass": mu is not None and mu < 1}}}
+    doc = {"controllers": {"nominal": ctrl(7, 3.2, 0.49), "robust": ctrl(7, 0.86, 0.43), "weak": ctrl(5, 0.5, 0.8),
+                           "user": ctrl(8, 0.5, 0.9, source="file")}}
+    assert choose_default(doc)[0] == "robust"             # tie on 7: mu < 1 beats the larger disk margin
+    doc["controllers"]["robust"] = ctrl(7, None, 0.43)   # unstable centre loop: not robust
+    assert choose_default(doc)[0] == "nominal"            # then the disk margin decides
+    doc["controllers"]["weak"] = ctrl(8, 2.0, 0.1)
+    assert choose_default(doc)[0] == "weak"               # more criteria met first; a user's file never wins
