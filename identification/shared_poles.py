@@ -101,7 +101,8 @@ def shared_pole_groups(columns, tol: float = SHARED_POLE_TOL, zeta_max: float = 
         light += [(float(fk), j, zk) for fk, zk, zt in zip(f, upper, zeta) if zt < zeta_max]
     groups = []
     for f, j, z in sorted(light, key=lambda t: t[0]):
-        g = next((g for g in groups if j not in g["members"] and abs(f - g["f0"]) <= tol * g["f0"]), None)
+        near = [g for g in groups if j not in g["members"] and abs(f - g["f0"]) <= tol * g["f0"]]
+        g = min(near, key=lambda g: abs(f - g["f0"])) if near else None
         if g is None:
             groups.append({"f0": f, "members": {j: z}})
         else:
@@ -165,6 +166,8 @@ def refine_shared_poles(columns, data, *, tol: float = SHARED_POLE_TOL, zeta_max
         are the least-squares fit to the record; ``K`` is the original innovation gain in the
         modal basis.
     """
+    if len(columns) == 0:
+        raise ValueError("columns: expected at least one column model, got none")
     if len(columns) != len(data):
         raise ValueError(f"data: expected one (u, y) record per column ({len(columns)}), got {len(data)}")
     dt = float(columns[0].dt_s)
@@ -175,8 +178,10 @@ def refine_shared_poles(columns, data, *, tol: float = SHARED_POLE_TOL, zeta_max
         us = as_signal(f"data[{j}] u", u)
         ys = as_signal(f"data[{j}] y", y)
         same_length(f"data[{j}] y", ys, f"data[{j}] u", us)
-        if us.shape[1] != 1 or col.B.shape[1] != 1:
-            raise ValueError(f"columns[{j}]: expected a single-input model and record, got {us.shape[1]} input(s)")
+        if col.B.shape[1] != 1:
+            raise ValueError(f"columns[{j}]: expected a single-input model, got {col.B.shape[1]} inputs")
+        if us.shape[1] != 1:
+            raise ValueError(f"data[{j}] u: expected one input channel, got {us.shape[1]}")
         if ys.shape[1] != col.C.shape[0]:
             raise ValueError(f"data[{j}] y: expected {col.C.shape[0]} outputs, got {ys.shape[1]}")
         recs.append((us[:, 0], ys))
@@ -303,8 +308,8 @@ def _modal_gain(col, upper, real):
     Vi = np.linalg.inv(V)
     b, k = Vi @ B0[:, 0], Vi @ K0
     rows = []
-    for lam in list(upper) + list(real):
+    for idx, lam in enumerate(list(upper) + list(real)):
         i = int(np.argmin(np.abs(lam0 - lam)))
         kw = k[i] / b[i] if abs(b[i]) > 1e-12 * np.max(np.abs(b)) else np.zeros(k.shape[1], complex)
-        rows += [kw.real, kw.imag] if np.iscomplexobj(lam) and abs(np.imag(lam)) > 0 else [kw.real]
+        rows += [kw.real, kw.imag] if idx < len(upper) else [kw.real]      # a 2-state block per complex pole
     return np.array(rows).reshape(len(rows), K0.shape[1])

@@ -395,7 +395,8 @@ def build_parser() -> argparse.ArgumentParser:
     cp = sub.add_parser("compare", help="controllers through the Section 5 suite and the robustness analysis, "
                                         "scored (scorecard.md/.html/.json)")
     cp.add_argument("--controllers", nargs="+", required=True, metavar="CTRL",
-                    help="bench names (paper, hinf-damped, pi-notch, damping-tracking, robust, feedforward), "
+                    help="bench names (paper, hinf-damped, pi-notch, damping-tracking, robust, feedforward, lqg, "
+                         "lqg-nominal), "
                          ".npz/.mat state spaces (A, B, C, D, dt) or module:function returning a controller object")
     cp.add_argument("--seeds", type=_seed_list, default=(0,), help="seeds, a range like 0-4 or a list (default 0)")
     cp.add_argument("--out", required=True, help="run folder for the scorecard")

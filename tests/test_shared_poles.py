@@ -90,3 +90,8 @@ def test_bad_input_names_the_argument():
     cols = [_column(j) for j in range(3)]
     with pytest.raises(ValueError, match="data: expected one"):
         refine_shared_poles(cols, _records(0.0, 0)[:2])
+    with pytest.raises(ValueError, match="columns: expected at least one"):
+        refine_shared_poles([], [])
+    u, y = _records(0.0, 0)[0]
+    with pytest.raises(ValueError, match=r"data\[0\] u: expected one input channel, got 2"):
+        refine_shared_poles(cols[:1], [(np.column_stack([u, u]), y)])

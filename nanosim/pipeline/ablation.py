@@ -159,7 +159,8 @@ class AblationPlant:
 
 def _design(plant: AblationPlant, row: AblationRow, seed: int, work: Path) -> Path:
     cfg = StageConfig.ideal() if row.identify_ideal else row.config
-    res = identify_stage(IdentifySettings(seed=seed, ideal=row.identify_ideal), model=plant.model, config=cfg,
+    res = identify_stage(IdentifySettings(seed=seed, ideal=row.identify_ideal, shared_poles=False), model=plant.model,
+                         config=cfg,
                          runner=plant.runner())
     npz = save_model(work / "model.npz", res)
     if row.model_freq_scale != 1.0:

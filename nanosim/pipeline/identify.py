@@ -82,7 +82,7 @@ def run_identify(out_dir, config: IdentifyConfig | None = None, *, model=None, t
     out_dir : path
         Run folder.
     config : IdentifyConfig, optional
-        Seed, order per column, ideal stage, operating points (default ``IdentifyConfig()``).
+        Seed, order per column, ideal stage, operating points, shared poles (default ``IdentifyConfig()``).
     model : mujoco.MjModel, optional
         Stage model (default: the bundled MJCF).
     twin : LinearTwin, optional

@@ -1,6 +1,6 @@
-"""The controller bench: six architectures, each a pure function of the identified model.
+"""The controller bench: eight designs, each a pure function of the identified model.
 
-``design_X(G, *, dt=250e-6, delay_samples=1, ...) -> BenchDesign`` (a discrete
+``design_X(G, *, dt=250e-6, delay_samples=0, ...) -> BenchDesign`` (a discrete
 ``Akd, Bkd, Ckd, Dkd, dt, n_error`` controller with its tuning rule), for
 
 * ``paper`` (:mod:`.paper`) -- the paper's 10-state single-loop H-infinity design;
