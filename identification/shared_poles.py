@@ -27,6 +27,7 @@ import scipy.optimize as _opt
 import scipy.signal as _sig
 
 from .checks import as_signal, frozen_array, same_length
+from .regression import observability_powers
 
 __all__ = ["SharedPoles", "refine_shared_poles", "shared_pole_groups", "SHARED_POLE_TOL", "LIGHT_DAMPING"]
 
@@ -208,8 +209,8 @@ def refine_shared_poles(columns, data, *, tol: float = SHARED_POLE_TOL, zeta_max
             Q, y_perp = proj[j]
             S = _regressors(u, [shared[i] for i, g in enumerate(groups) if j in g], [], len(u))[:, :-1]
             S -= Q @ (Q.T @ S)
-            c = np.linalg.lstsq(S / np.linalg.norm(S, axis=0), y_perp, rcond=None)[0]
-            out.append(y_perp - (S / np.linalg.norm(S, axis=0)) @ c)
+            S /= np.linalg.norm(S, axis=0)
+            out.append(y_perp - S @ np.linalg.lstsq(S, y_perp, rcond=None)[0])
         return out
 
     # weights: each output's residual variance at the columns' own poles
@@ -293,11 +294,7 @@ def _initial_state(A, Cm, theta, nc, nr):
         y_free += np.outer((lam ** k).real, theta[4 * i + 2]) + np.outer((lam ** k).imag, theta[4 * i + 3])
     for i in range(nr):
         y_free += np.outer(A[2 * nc + i, 2 * nc + i] ** k, theta[4 * nc + 2 * i + 1])
-    O = np.empty((2 * n, l, n))
-    M = Cm.copy()
-    for t in range(2 * n):
-        O[t] = M
-        M = M @ A
+    O = observability_powers(A, Cm, 2 * n)
     return np.linalg.lstsq(O.reshape(-1, n), y_free.reshape(-1), rcond=None)[0]
 
 

@@ -244,9 +244,8 @@ def choose_default(doc: dict) -> tuple[str | None, str]:
     def w(c, key):
         v = c["summary"][key]["worst"]
         return -math.inf if v is None else v
-    def robust(c):
-        mu = c["summary"]["mu_peak"]["worst"]
-        return mu is not None and mu < 1.0
+    def robust(c):                                  # the mu criterion's own verdict (mu < 1 over the set)
+        return bool(c["acceptance"].get("mu_peak", {}).get("pass"))
     key = lambda nc: (nc[1]["acceptance_met"], robust(nc[1]), w(nc[1], "multiloop_disk_margin"),  # noqa: E731
                       w(nc[1], "bandwidth_S_feedback_hz"))
     best = max(cands, key=key)

@@ -341,12 +341,12 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
     f = analysis_grid_hz(dt, n=400)
     Gf = freqresp_z(Gd, f)
     ladder = ROBUST_LADDER if robust else tuple((1.0, i, r) for i, r in DEFAULT_LADDER)
+    design_models = {s: shifted_modes(Gd, s) if s != 1.0 else Gd for s in dict.fromkeys(m[0] for m in ladder)}
     members = []
     for scale, infl, ru in ladder:
         dn = disturbance_noise_V(infl) if robust else DISTURBANCE_NOISE_V
-        Gdes = shifted_modes(Gd, scale) if scale != 1.0 else Gd
-        K = lqg_controller(Gdes, delay_samples=delay_samples, measurement_inflation=infl, control_weight=ru,
-                           disturbance_noise_V=dn)
+        K = lqg_controller(design_models[scale], delay_samples=delay_samples, measurement_inflation=infl,
+                           control_weight=ru, disturbance_noise_V=dn)
         Ke, Ky = split_2dof(K, Gd.noutputs)
         rho = closed_loop_spectral_radius(Gd, Ke, Ky, delay_samples)
         sig = float(predicted_noise_sigma_nm(Gloop, K)[:2].max()) if rho < 1.0 else float("inf")
