@@ -612,6 +612,31 @@ def test_analyze_controller_on_the_loop_as_run():
         la.analyze_controller(ct.ss(K2.A, K2.B, K2.C, K2.D, 1e-3), plant, n_error=3, freq_hz=f[f < 400])
 
 
+def test_analyze_controller_repeats_are_served_once_and_stay_independent():
+    # the robust LQG rule's mu check and robustness.json analyse the same loop: the second call is a copy of
+    # the first (same numbers), a caller editing its summary does not change the next answer, and any
+    # change of the inputs (here the sampling seed or the controller) is a new analysis
+    from nanosim.design import robustness as rb
+
+    Gd, _ = stage()
+    _, _, K2 = _two_dof_controller(Gd)
+    plant = la.LoopPlant.twin(Gd)
+    f = np.logspace(-1, np.log10(2000.0), 40)
+    kw = dict(n_error=3, freq_hz=f, n_levels=2, n_random=2)
+    rb._ANALYSES.clear()
+    a = la.analyze_controller(K2, plant, **kw)
+    assert len(rb._ANALYSES) == 1
+    a.summary["peak_So"] = -1.0
+    b = la.analyze_controller(K2, plant, **kw)
+    assert len(rb._ANALYSES) == 1 and b.summary["peak_So"] > 1.0
+    assert b.summary["sampled_worst"] == a.summary["sampled_worst"]
+    c = la.analyze_controller(K2, plant, seed=1, **kw)
+    assert len(rb._ANALYSES) == 2 and c is not b
+    K3 = ct.ss(K2.A, K2.B, 0.5 * np.asarray(K2.C), 0.5 * np.asarray(K2.D), K2.dt)
+    d = la.analyze_controller(K3, plant, **kw)
+    assert len(rb._ANALYSES) == 3
+    assert np.abs(np.sort_complex(d.poles) - np.sort_complex(b.poles)).max() > 1e-3
+
 def test_perturbed_plant_moves_the_modes_not_the_signal_chain_filters():
     # The gauge's Tustin-discretized Butterworth (3 identical channels, poles in the left half
     # of the z-plane, zeta 0.7) is not a structural mode: only the light modes move.

@@ -386,10 +386,13 @@ class _DGStructure:
         labels = list(dict.fromkeys(groups.tolist()))
         self.blocks = [np.flatnonzero(groups == g) for g in labels]
         self.real_block = [bool(real[b[0]]) for b in self.blocks]
-        self.sc = [b[0] for b in self.blocks if b.size == 1]
+        self.sc = np.array([b[0] for b in self.blocks if b.size == 1], dtype=int)
         self.rep = [b for b in self.blocks if b.size > 1]
-        self.sc_real = [b[0] for b, r in zip(self.blocks, self.real_block) if b.size == 1 and r]
+        self.sc_real = np.array([b[0] for b, r in zip(self.blocks, self.real_block) if b.size == 1 and r], dtype=int)
         self.rep_real = [b for b, r in zip(self.blocks, self.real_block) if b.size > 1 and r]
+        # index grids of the repeated blocks, built once (np.ix_ per call dominated the optimiser's overhead)
+        self.rep_ix = [np.ix_(b, b) for b in self.rep]
+        self.rep_real_ix = [np.ix_(b, b) for b in self.rep_real]
         self.n_theta = (len(self.sc) + sum(2 * b.size ** 2 for b in self.rep) + len(self.sc_real)
                         + sum(2 * b.size ** 2 for b in self.rep_real))
 
@@ -415,20 +418,20 @@ class _DGStructure:
         y = th[:k]
         T[self.sc, self.sc] = np.exp(y)
         Ti[self.sc, self.sc] = np.exp(-y)
-        for b in self.rep:
+        for b, ix in zip(self.rep, self.rep_ix):
             r2 = b.size ** 2
             Tb = (th[k:k + r2] + 1j * th[k + r2:k + 2 * r2]).reshape(b.size, b.size)
             k += 2 * r2
-            T[np.ix_(b, b)] = Tb
-            Ti[np.ix_(b, b)] = np.linalg.inv(Tb)
+            T[ix] = Tb
+            Ti[ix] = np.linalg.inv(Tb)
         G[self.sc_real, self.sc_real] = th[k:k + len(self.sc_real)]
         k += len(self.sc_real)
-        for b in self.rep_real:
+        for b, ix in zip(self.rep_real, self.rep_real_ix):
             r2 = b.size ** 2
             X = th[k:k + r2].reshape(b.size, b.size)
             Y = th[k + r2:k + 2 * r2].reshape(b.size, b.size)
             k += 2 * r2
-            G[np.ix_(b, b)] = 0.5 * (X + X.T) + 0.5j * (Y - Y.T)
+            G[ix] = 0.5 * (X + X.T) + 0.5j * (Y - Y.T)
         return T, Ti, G
 
     def hermitian(self, M, th):
@@ -457,12 +460,12 @@ class _DGStructure:
         GT = (Cm.conj() * w) @ P.T - (E.conj() * w) @ U.T           # d/dT (complex), n x n
         GG = (V.conj() * w) @ A.T                                    # d/dGt
         out = [2.0 * np.real(np.diag(GT)[self.sc] * np.diag(T)[self.sc])]
-        for b in self.rep:
-            g = GT[np.ix_(b, b)]
+        for ix in self.rep_ix:
+            g = GT[ix]
             out += [2.0 * np.real(g).ravel(), -2.0 * np.imag(g).ravel()]
         out.append(-2.0 * np.imag(np.diag(GG)[self.sc_real]))
-        for b in self.rep_real:
-            g = GG[np.ix_(b, b)]
+        for ix in self.rep_real_ix:
+            g = GG[ix]
             out += [-np.imag(g + g.T).ravel(), -np.real(g - g.T).ravel()]
         return np.concatenate(out)
 

@@ -23,8 +23,13 @@ linear twin ``twin.npz`` is the standard zero-order-hold model ``y_k = C x_k + D
 """
 from __future__ import annotations
 
+import collections
+import dataclasses
+import hashlib
+import json
 import math
 import os
+import threading
 from dataclasses import dataclass, field
 
 import control as ct
@@ -547,6 +552,11 @@ def analyze_controller(controller, plant, *, n_error: int | None = None, uncerta
     G, d = plant.G, plant.delay_samples
     loop = PreparedLoop(G, K, Ky, d, None, allow_stack=False)
     f = loop.check_freq(stage_grid_hz(plant, K, Ky) if freq_hz is None else freq_hz, increasing=True)
+    key = _analysis_key(G, K, Ky, d, f, plant.label, uncertainty, mu, n_levels, n_random, seed)
+    with _ANALYSES_LOCK:
+        hit = _ANALYSES.get(key)
+    if hit is not None:
+        return dataclasses.replace(hit, summary=dict(hit.summary))
     poles = closed_loop_poles(G, K, Ky, d)
     summary = _poles_dict(poles, plant.dt, None)
     band = _poles_dict(poles, plant.dt, MODE_BAND_HZ)
@@ -570,5 +580,35 @@ def analyze_controller(controller, plant, *, n_error: int | None = None, uncerta
                                           damping_scale_range=kw["damping_scale_range"],
                                           delay_samples_range=kw["delay_samples_range"], refine=False)
         summary.update(_mixed_dict(mixed, _mu_dict(res)))
-    return ControllerRobustness(label=plant.label, delay_samples=d, response=r, margins=rep, robust=res,
-                                poles=poles, summary=summary, uncertainty=uncertainty if mu else None, mixed=mixed)
+    out = ControllerRobustness(label=plant.label, delay_samples=d, response=r, margins=rep, robust=res,
+                               poles=poles, summary=summary, uncertainty=uncertainty if mu else None, mixed=mixed)
+    with _ANALYSES_LOCK:
+        _ANALYSES[key] = dataclasses.replace(out, summary=dict(summary))
+        while len(_ANALYSES) > _ANALYSES_KEPT:
+            _ANALYSES.popitem(last=False)
+    return out
+
+
+# the last analyses of this process, by the digest of everything they depend on: the robust LQG rule's
+# mixed-mu check of its chosen member and robustness.json's analysis of the exported controller are the same
+# computation (~12 s), done once
+_ANALYSES_KEPT = 4
+_ANALYSES: collections.OrderedDict = collections.OrderedDict()
+_ANALYSES_LOCK = threading.Lock()
+
+
+def _analysis_key(G, K, Ky, delay, f, label, uncertainty, mu, n_levels, n_random, seed) -> str:
+    h = hashlib.sha256()
+    for sys_ in (G, K, Ky):
+        if sys_ is None:
+            h.update(b"none")
+            continue
+        for m in (sys_.A, sys_.B, sys_.C, sys_.D):
+            a = np.ascontiguousarray(np.asarray(m, float))
+            h.update(repr(a.shape).encode())
+            h.update(a.tobytes())
+        h.update(repr(float(sys_.dt)).encode())
+    h.update(np.ascontiguousarray(np.asarray(f, float)).tobytes())
+    h.update(json.dumps([int(delay), str(label), uncertainty.to_dict(), bool(mu), int(n_levels), int(n_random),
+                         int(seed)], sort_keys=True, default=str).encode())
+    return h.hexdigest()

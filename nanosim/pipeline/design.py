@@ -167,7 +167,9 @@ def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNC
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     analyses = {k: analyze_controller(controller, p, uncertainty=uncertainty, mu=mu) for k, p in plants.items()}
-    doc = {"controller": str(controller) if isinstance(controller, (str, os.PathLike)) else type(controller).__name__,
+    # a path is recorded by its name: the folder may be a staging folder that is renamed when complete
+    doc = {"controller": Path(controller).name if isinstance(controller, (str, os.PathLike))
+           else type(controller).__name__,
            "loop": "u_k = K (r_k - y_k) + Ky y_k from the reading y_k; Stage.step(u_k) returns y_(k+1) and the "
                    "command reaches the DAC after the computation delay. Each plant's loop_delay_samples is the delay "
                    "beyond its model (twin: 1 + computation delay, amplifier and gauge filters added; identified "
