@@ -199,3 +199,30 @@ def test_local_cluster_gives_the_local_numbers(tmp_path, controller_npz):
         for rec in (a[k], b[k]):
             rec.pop("seconds")
         assert a[k] == b[k]
+
+
+def test_crosscheck_agreement_is_relative_or_within_one_reading_quantum():
+    # the ADC count is 20 V / 2^16 x 5 um/V = 1.526 nm; a closed-loop creep drift of 0.03 vs 0.04 nm (33 %) is far
+    # below it and agrees, a contour error of 23.2 vs 21.6 nm (7 %, 1.6 nm, an averaged metric) does not
+    lsb = 20.0 / 2 ** 16 * 5.0 * 1e3
+    assert mc_stats.CROSSCHECK_RESOLUTION["creep.closed_loop_drift_nm"] == pytest.approx(lsb, rel=1e-12)
+    assert mc_stats.CROSSCHECK_RESOLUTION["step_2um.overshoot_percent"] == pytest.approx(100 * lsb / 2000, rel=1e-12)
+    assert mc_stats.CROSSCHECK_RESOLUTION["step_2um.rise_ms"] == pytest.approx(0.25)
+    twin = {"creep.closed_loop_drift_nm": 0.03, "step_2um.rise_ms": 3.0, "contouring.1000um_s.mean_error_nm": 23.2,
+            "bandwidth_S_hz": 52.0}
+    mj = {"creep.closed_loop_drift_nm": 0.04, "step_2um.rise_ms": 3.25, "contouring.1000um_s.mean_error_nm": 21.6,
+          "bandwidth_S_hz": 53.0}
+    c = mc_stats.compare_crosscheck(twin, mj)
+    m = c["metrics"]
+    assert m["creep.closed_loop_drift_nm"]["ok"] and not m["creep.closed_loop_drift_nm"]["ok_relative"]
+    assert m["step_2um.rise_ms"]["ok"] and not m["step_2um.rise_ms"]["ok_relative"]     # one sample
+    assert m["bandwidth_S_hz"]["ok"] and m["bandwidth_S_hz"]["ok_relative"]              # 1.9 %
+    assert not m["contouring.1000um_s.mean_error_nm"]["ok"]
+    assert m["contouring.1000um_s.mean_error_nm"]["abs_diff"] == pytest.approx(1.6)
+    assert not c["all_ok"] and not c["all_ok_relative"]
+    twin["contouring.1000um_s.mean_error_nm"] = 22.0                                     # 1.8 %
+    c = mc_stats.compare_crosscheck(twin, mj)
+    assert c["all_ok"] and not c["all_ok_relative"]
+    # two rises one sample apart plus a hair: not within the quantum
+    c = mc_stats.compare_crosscheck({"step_2um.rise_ms": 3.0}, {"step_2um.rise_ms": 3.2501})
+    assert not c["all_ok"]

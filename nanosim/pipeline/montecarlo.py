@@ -277,6 +277,10 @@ def summarize(out: Path, settings: MonteCarloConfig, spec: dict, names, tm) -> d
     summary = {"n": len(recs), "seed": settings.seed, "experiments": list(names), "yield": table,
                "worst_cases": worst, "sensitivity": sens, "crosscheck": cross,
                "crosscheck_pass": sum(c["all_ok"] for c in cross), "crosscheck_n": len(cross),
+               "crosscheck_pass_relative_only": sum(c["all_ok_relative"] for c in cross),
+               "crosscheck_rule": (f"every metric within {100 * mc_stats.CROSSCHECK_REL_TOL:g} % or within its "
+                                   "reading resolution (crosscheck_resolution)"),
+               "crosscheck_resolution": dict(mc_stats.CROSSCHECK_RESOLUTION),
                "crosscheck_max_rel_diff": max((r["rel_diff"] for c in cross for r in c["metrics"].values()),
                                               default=None),
                "errors": errors}
@@ -319,14 +323,22 @@ def report_markdown(summary: dict) -> str:
         g = ", ".join(f"{d['group']} ({_fmt(d['adjusted_r2'])})" for d in s["groups"][:3])
         v = ", ".join(f"{d['name']} ({d['spearman_rho']:+.2f})" for d in s["top_variables"][:3])
         lines.append(f"| `{m}` | {g} | {v} |")
+    tol = 100 * mc_stats.CROSSCHECK_REL_TOL
     lines += ["", f"## MuJoCo cross-check ({summary['crosscheck_pass']} of {summary['crosscheck_n']} samples with "
-              "every metric within 5 %)", ""]
+              f"every metric within {tol:g} % or its reading resolution; "
+              f"{summary.get('crosscheck_pass_relative_only', 0)} within {tol:g} % alone)", "",
+              "Resolution (one ADC count, or one control period for a time read between samples): " +
+              ", ".join(f"`{m}` {_fmt(q)} {mc_stats.unit_of(m)}" for m, q in mc_stats.CROSSCHECK_RESOLUTION.items()),
+              ""]
     if summary["crosscheck"]:
-        lines += ["| sample | metrics within 5 % | largest difference |", "|---|---|---|"]
+        lines += ["| sample | metrics agreeing | largest difference not within the resolution |", "|---|---|---|"]
         for c in summary["crosscheck"]:
-            big = max(c["metrics"].items(), key=lambda kv: kv[1]["rel_diff"]) if c["metrics"] else ("", {})
+            judged = {m: r for m, r in c["metrics"].items() if r["abs_diff"] > r["resolution"] * (1 + 1e-9)}
+            big = max(judged.items(), key=lambda kv: kv[1]["rel_diff"]) if judged else None
+            worst = (f"`{big[0]}` {100 * big[1]['rel_diff']:.2f} % ({_fmt(big[1]['twin'])} vs "
+                     f"{_fmt(big[1]['mujoco'])} {mc_stats.unit_of(big[0])})") if big else "none"
             lines.append(f"| #{c['sample']} | {sum(r['ok'] for r in c['metrics'].values())}/{len(c['metrics'])} | "
-                         f"`{big[0]}` {100 * big[1].get('rel_diff', math.nan):.2f} % |")
+                         f"{worst} |")
     lines += ["", "## Figures", ""]
     for name, fig, present in (("histograms", FIG_HIST, summary["n"] > 0), ("sensitivity", FIG_SENS,
                                                                              bool(summary["sensitivity"])),

@@ -74,10 +74,15 @@ def fig_crosscheck(cross: list):
     metrics = sorted({m for c in cross for m in c["metrics"]})
     fig, ax = subplots(1, 1, figsize=(9, 0.35 * len(metrics) + 2))
     for k, c in enumerate(cross):
-        y = [metrics.index(m) + 0.6 * (k / max(1, len(cross) - 1) - 0.5) for m in c["metrics"]]
-        x = [100 * (r["twin"] - r["mujoco"]) / max(abs(r["mujoco"]), 1e-12) for r in c["metrics"].values()]
-        ax.plot(x, y, "o", ms=3, label=f"#{c['sample']}")
+        y = np.array([metrics.index(m) + 0.6 * (k / max(1, len(cross) - 1) - 0.5) for m in c["metrics"]])
+        x = np.array([100 * (r["twin"] - r["mujoco"]) / max(abs(r["mujoco"]), 1e-12) for r in c["metrics"].values()])
+        # open marker: within the metric's reading resolution (one ADC count or one period), whatever the %
+        res = np.array([r.get("abs_diff", math.inf) <= r.get("resolution", 0.0) * (1 + 1e-9)
+                        for r in c["metrics"].values()], bool)
+        line, = ax.plot(x[~res], y[~res], "o", ms=3, label=f"#{c['sample']}")
+        ax.plot(x[res], y[res], "o", ms=4, mfc="none", color=line.get_color())
     ax.axvspan(-5, 5, color="tab:green", alpha=0.12, label="within 5 %")
+    ax.plot([], [], "o", ms=4, mfc="none", color="0.4", label="within the reading resolution")
     ax.set_yticks(range(len(metrics)), metrics, fontsize=8)
     ax.set_xlabel("(twin - MuJoCo) / MuJoCo [%]")
     ax.grid(alpha=0.3)
