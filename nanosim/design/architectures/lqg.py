@@ -55,6 +55,14 @@ while the multiloop disk margin is below :data:`MIN_DISK_MARGIN` = 0.45). On MuJ
 settling 10.25-10.5 ms, sigma of the table 1.76-1.84 nm, contour 24.1-24.7 nm) but is unstable at modes +3 %
 with one extra sample.
 
+The settling limit of the family (session 7, the linear twin with every effect, which reproduces MuJoCo's 2 um
+step settling: 10.75 / 10.75 / 13.0 / 10.75 / 10.75 ms vs 10.75 / 12.75 / 13.0 / 10.75 / 10.75 ms on seeds 0-4):
+of the 20 members of :data:`ROBUST_LADDER`, each designed on each seed's own model, none settles within 11 ms on
+every seed with a predicted table sigma <= 1.89 nm. Inflation 5 settles in 6.5 ms but at 1.97-2.01 nm; 2.5-3
+give 1.76-1.88 nm and 10.5-15 ms, set by a -25 nm hysteresis/creep tail plus the +-20-35 nm ring of the
+450-458 Hz closed-loop pair. Without the disturbance observer the step settles in 8.25-10.5 ms but the contour
+error is 74-103 nm.
+
 Not a criterion, reported as ``parameters["spectral_radius_small_signal_gain"]``: the loop at
 :data:`SMALL_SIGNAL_GAIN` x the identified input gain (the twin's small-signal piezo slope is 1.35-1.41 x the
 identified hysteresis-average slope, 1.22 x more after reversals); neither rule's loop is stable there, and
