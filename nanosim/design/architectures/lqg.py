@@ -59,7 +59,7 @@ The settling limit of the family (session 7, the linear twin with every effect, 
 step settling: 10.75 / 10.75 / 13.0 / 10.75 / 10.75 ms vs 10.75 / 12.75 / 13.0 / 10.75 / 10.75 ms on seeds 0-4):
 of the 20 members of :data:`ROBUST_LADDER`, each designed on each seed's own model, none settles within 11 ms on
 every seed with a predicted table sigma <= 1.89 nm. Inflation 5 settles in 6.5 ms but at 1.97-2.01 nm; 2.5-3
-give 1.76-1.88 nm and 10.5-15 ms, set by a -25 nm hysteresis/creep tail plus the +-20-35 nm ring of the
+give 1.76-1.88 nm and 10.5-15.25 ms, set by a -25 nm hysteresis/creep tail plus the +-20-35 nm ring of the
 450-458 Hz closed-loop pair. Without the disturbance observer the step settles in 8.25-10.5 ms but the contour
 error is 74-103 nm.
 
