@@ -215,6 +215,7 @@ def test_crosscheck_agreement_is_relative_or_within_one_reading_quantum():
     c = mc_stats.compare_crosscheck(twin, mj)
     m = c["metrics"]
     assert m["creep.closed_loop_drift_nm"]["ok"] and not m["creep.closed_loop_drift_nm"]["ok_relative"]
+    assert m["creep.closed_loop_drift_nm"]["within_resolution"] and not m["bandwidth_S_hz"]["within_resolution"]
     assert m["step_2um.rise_ms"]["ok"] and not m["step_2um.rise_ms"]["ok_relative"]     # one sample
     assert m["bandwidth_S_hz"]["ok"] and m["bandwidth_S_hz"]["ok_relative"]              # 1.9 %
     assert not m["contouring.1000um_s.mean_error_nm"]["ok"]

@@ -273,7 +273,8 @@ def sensitivity(X: np.ndarray, names: list[str], groups: list[str], flats: list[
 
 def compare_crosscheck(twin: dict, mujoco: dict, metrics=CROSSCHECK_METRICS, rel_tol: float = CROSSCHECK_REL_TOL,
                        resolution: dict | None = None) -> dict:
-    """Twin vs MuJoCo for one sample: ``{metric: {twin, mujoco, rel_diff, abs_diff, resolution, ok, ok_relative}}``,
+    """Twin vs MuJoCo for one sample: ``{metric: {twin, mujoco, rel_diff, abs_diff, resolution, within_resolution,
+    ok, ok_relative}}``,
     ``all_ok`` and ``all_ok_relative``.
 
     Compares ``metrics`` (default: the pipeline report's MuJoCo-vs-twin quantities) where both
@@ -291,7 +292,8 @@ def compare_crosscheck(twin: dict, mujoco: dict, metrics=CROSSCHECK_METRICS, rel
             continue
         rel = abs(a - b) / max(abs(b), abs(a), 1e-12) if a != b else 0.0
         q = float(res.get(m, 0.0))
+        within = abs(a - b) <= q * (1 + 1e-9)
         rows[m] = {"twin": a, "mujoco": b, "rel_diff": rel, "abs_diff": abs(a - b), "resolution": q,
-                   "ok": rel <= rel_tol or abs(a - b) <= q * (1 + 1e-9), "ok_relative": rel <= rel_tol}
+                   "within_resolution": within, "ok": rel <= rel_tol or within, "ok_relative": rel <= rel_tol}
     return {"metrics": rows, "all_ok": all(r["ok"] for r in rows.values()) if rows else False,
             "all_ok_relative": all(r["ok_relative"] for r in rows.values()) if rows else False}

@@ -333,7 +333,7 @@ def report_markdown(summary: dict) -> str:
     if summary["crosscheck"]:
         lines += ["| sample | metrics agreeing | largest difference not within the resolution |", "|---|---|---|"]
         for c in summary["crosscheck"]:
-            judged = {m: r for m, r in c["metrics"].items() if r["abs_diff"] > r["resolution"] * (1 + 1e-9)}
+            judged = {m: r for m, r in c["metrics"].items() if not r.get("within_resolution", False)}
             big = max(judged.items(), key=lambda kv: kv[1]["rel_diff"]) if judged else None
             worst = (f"`{big[0]}` {100 * big[1]['rel_diff']:.2f} % ({_fmt(big[1]['twin'])} vs "
                      f"{_fmt(big[1]['mujoco'])} {mc_stats.unit_of(big[0])})") if big else "none"
