@@ -23,7 +23,7 @@ from .fit import fit_percent
 from .freq import H1Estimate, frequency_response, h1_estimate
 from .modal import Modes, continuous_poles, modes_from_model
 from .signals import Excitation, Spectrum, paper_excitation, prbs, prbs_hold_samples, signal_spectrum
-from .shared_poles import SharedPoles, refine_shared_poles, shared_pole_groups
+from .shared_poles import LIGHT_DAMPING, SharedPoles, refine_shared_poles, shared_pole_groups
 from .simulation import estimate_x0, predict, simulate
 from .subspace import IdentifiedModel, default_horizon, select_order, subspace_id
 
@@ -55,4 +55,5 @@ __all__ = [
     "refine_shared_poles",
     "shared_pole_groups",
     "SharedPoles",
+    "LIGHT_DAMPING",
 ]

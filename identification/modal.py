@@ -7,7 +7,7 @@ import numpy as np
 
 from .checks import frozen_array, positive_float, square_matrix
 
-__all__ = ["Modes", "modes_from_model", "continuous_poles"]
+__all__ = ["Modes", "modes_from_model", "continuous_poles", "split_poles"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,6 +60,17 @@ def continuous_poles(A, dt: float | None = None) -> np.ndarray:
     return np.log(lam) / dt
 
 
+def split_poles(lam, imag_tol: float = 1e-9):
+    """Complex poles (upper half plane) and real poles of the eigenvalues ``lam``.
+
+    A pole is complex when ``|Im| > imag_tol * |pole|``; returns ``(upper, real)``, complex and
+    real arrays in the order of ``lam``.
+    """
+    lam = np.asarray(lam, complex)
+    is_cplx = np.abs(lam.imag) > imag_tol * np.abs(lam)
+    return lam[is_cplx & (lam.imag > 0)], lam[~is_cplx].real
+
+
 def _unpack(A, dt):
     if hasattr(A, "A") and hasattr(A, "dt_s"):
         if dt is None:
@@ -92,9 +103,7 @@ def modes_from_model(A, dt: float | None = None, *, imag_tol: float = 1e-9) -> M
     """
     A, dt = _unpack(A, dt)
     lam = np.linalg.eigvals(A).astype(complex)
-    is_cplx = np.abs(lam.imag) > imag_tol * np.abs(lam)
-    upper = lam[is_cplx & (lam.imag > 0)]
-    real = lam[~is_cplx].real
+    upper, real = split_poles(lam, imag_tol)
     if dt is None:
         s_pairs = upper
         s_real = real

@@ -27,6 +27,7 @@ import scipy.optimize as _opt
 import scipy.signal as _sig
 
 from .checks import as_signal, frozen_array, same_length
+from .modal import split_poles
 from .regression import observability_powers
 
 __all__ = ["SharedPoles", "refine_shared_poles", "shared_pole_groups", "SHARED_POLE_TOL", "LIGHT_DAMPING"]
@@ -67,9 +68,7 @@ class SharedPoles:
 
 
 def _split_poles(model):
-    lam = np.linalg.eigvals(np.asarray(model.A, float)).astype(complex)
-    cplx = np.abs(lam.imag) > 1e-9 * np.maximum(np.abs(lam), 1e-300)
-    return lam[cplx & (lam.imag > 0)], lam[~cplx].real
+    return split_poles(np.linalg.eigvals(np.asarray(model.A, float)))
 
 
 def _z_to_hz_zeta(z, dt):

@@ -173,7 +173,7 @@ def identify_stage(settings: IdentifySettings = IdentifySettings(), model=None, 
 # pole-zero pair of column A (issue 13). Weakly excited true modes, estimated a little differently
 # in each column, stay.
 SHARED_MODE_TOL = 0.03
-LIGHT_DAMPING = 0.1
+LIGHT_DAMPING = ident.LIGHT_DAMPING          # the same "resonance" as the shared-pole refinement's
 
 
 def unshared_resonances_hz(columns, tol: float = SHARED_MODE_TOL, zeta_max: float = LIGHT_DAMPING) -> list:
