@@ -80,6 +80,7 @@ the integrator ``e``; the reference enters through the integrator only (no kick 
 from __future__ import annotations
 
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 
@@ -358,18 +359,18 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
         Ke, Ky = split_2dof(K, Gd.noutputs)
         rho = closed_loop_spectral_radius(Gd, Ke, Ky, delay_samples)
         sig = float(predicted_noise_sigma_nm(Gloop, K)[:2].max()) if rho < 1.0 else float("inf")
-        members.append((sig, scale, infl, ru, dn, K, rho))
+        members.append(_Member(sig, scale, infl, ru, dn, K, rho))
     if robust:
-        members.sort(key=lambda m: m[0])
+        members.sort(key=lambda m: m.sigma_nm)
     min_dm = ROBUST_MIN_DISK_MARGIN if robust else min_disk_margin
     tried, best, fallback, n_mu = [], None, None, 0
-    for sig, scale, infl, ru, dn, K, rho in members:
-        row = {"design_freq_scale": scale, "measurement_inflation": infl, "control_weight": ru,
-               "predicted_sigma_nm": sig, "spectral_radius": rho}
+    for m in members:
+        row = {"design_freq_scale": m.scale, "measurement_inflation": m.inflation, "control_weight": m.ru,
+               "predicted_sigma_nm": m.sigma_nm, "spectral_radius": m.rho}
         tried.append(row)
-        if rho >= 1.0:
+        if m.rho >= 1.0:
             continue
-        Ke, Ky = split_2dof(K, Gd.noutputs)
+        Ke, Ky = split_2dof(m.K, Gd.noutputs)
         r = loop_response(Gf, f, Ke, Ky, delay_samples=delay_samples, dt=dt)
         dm = disk_margin_summary(r)
         row["multiloop_disk_margin"] = dm["multiloop"]
@@ -377,19 +378,19 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
             continue
         v = uncertainty_vertex_check(Gloop, Ke, Ky)
         row["worst_spectral_radius"] = v["worst_spectral_radius"]
-        cand = (sig, scale, infl, ru, dn, K, rho, r, dm, v, None)
+        cand = m._replace(response=r, disk_margin=dm, vertices=v)
         if not robust:
             best = cand
             break
-        if fallback is None or v["worst_spectral_radius"] < fallback[9]["worst_spectral_radius"]:
+        if fallback is None or v["worst_spectral_radius"] < fallback.vertices["worst_spectral_radius"]:
             fallback = cand
         if not v["all_stable"] or n_mu >= ROBUST_MAX_MU_CHECKS:
             continue
-        mu = _mixed_mu_peak(Gloop, K, Gd.noutputs)
+        mu = _mixed_mu_peak(Gloop, m.K, Gd.noutputs)
         n_mu += 1
         row["mu_peak"] = mu
-        cand = cand[:-1] + (mu,)
-        if best is None or mu < best[-1]:
+        cand = cand._replace(mu=mu)
+        if best is None or mu < best.mu:
             best = cand
         if mu < ROBUST_MU_MAX:
             break
@@ -417,6 +418,22 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
               "spectral_radius_small_signal_gain": closed_loop_spectral_radius(Pup, Ke, Ky, 0),
               "loop_delay_samples": delay_samples}
     return BenchDesign("lqg", K, Gd.noutputs, ROBUST_TUNING_RULE if robust else TUNING_RULE, params)
+
+
+class _Member(NamedTuple):
+    """A member of a rule's ladder and, once checked, its loop figures."""
+
+    sigma_nm: float
+    scale: float
+    inflation: float
+    ru: float
+    dn: float
+    K: object
+    rho: float
+    response: object = None
+    disk_margin: dict | None = None
+    vertices: dict | None = None
+    mu: float | None = None
 
 
 def _mixed_mu_peak(Gloop, K, n_error: int) -> float:
