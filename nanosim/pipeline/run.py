@@ -7,7 +7,6 @@ a run folder is complete or untouched.
 from __future__ import annotations
 
 import dataclasses
-
 import gc
 import multiprocessing
 import os

@@ -20,7 +20,6 @@ What is shared or scheduled together:
 from __future__ import annotations
 
 import dataclasses
-
 import gc
 import json
 import math
