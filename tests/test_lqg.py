@@ -139,6 +139,17 @@ def test_robust_lqg_is_stable_over_the_whole_uncertainty_set_with_the_disk_margi
     r = loop_response(freqresp_z(model, f), f, Ke, Ky, delay_samples=0)
     assert disk_margin_summary(r)["multiloop"] >= ROBUST_MIN_DISK_MARGIN - 0.005
     assert p["predicted_bandwidth_S_hz"] >= 32.0
+    # the reference prefilter: one notch on the 450-458 Hz ring (4-5 % of a step), none left; the feedback is the
+    # checked member's (the worst vertex's spectral radius, recorded before the prefilter, is the final loop's)
+    pf = p["reference_prefilter"]
+    assert len(pf["notches"]) == 1 and 440.0 < pf["notches"][0]["freq_hz"] < 470.0, pf["notches"]
+    assert max(q["step_fraction"] for q in pf["ringing_pairs"]) > 0.03 and pf["ringing_pairs_after"] == []
+    assert pf["prefilter_states"] == 6 and p["controller_order"] == d.K.nstates
+    from nanosim.design.uncertainty import ModalPlant
+    w = v["worst"]
+    P = ModalPlant(model, DT_S).state_space(w["freq_scale"], w["damping_scale"], np.array(w["input_gain"]),
+                                            w["extra_delay_samples"])
+    assert closed_loop_spectral_radius(P, Ke, Ky, 0) == pytest.approx(v["worst_spectral_radius"], rel=1e-9)
     for row in p["tried"]:
         if row["predicted_sigma_nm"] >= p["predicted_noise_sigma_nm"]:
             continue

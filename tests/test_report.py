@@ -59,3 +59,22 @@ def test_every_figure_the_experiments_write_is_registered():
         exp = experiments.get(name)
         if exp.figure_name:
             assert exp.figure_name in names, exp.figure_name
+
+
+def test_controller_section_describes_the_exported_bench_design_not_the_hinf_reference():
+    """design.json of an lqg export: the report names the lqg design, its order and prefilter notches; an
+    H-infinity export keeps the H-infinity paragraph."""
+    from nanosim.pipeline.report import _architecture
+    des = {"architecture": "lqg", "reduced_order": 14,
+           "damping_loop": {"zeta_added": 0.1, "mode_hz": 176.0, "lowpass_hz": 400.0},
+           "exported_controller": {"architecture": "lqg", "tuning_rule": "LQG rule", "controller_order": 49,
+                                   "parameters": {"reference_prefilter": {
+                                       "notches": [{"freq_hz": 452.2, "zeta_zero": 0.063, "zeta_pole": 0.7}],
+                                       "prefilter_states": 6}}}}
+    text = _architecture(des)[2]
+    assert "`lqg` design (49 states)" in text and "LQG rule" in text
+    assert "notches at 452 Hz (zeta 0.063 -> 0.7)" in text and "6 of the states" in text
+    assert "H-infinity mixed-sensitivity" not in text
+    des.pop("exported_controller")
+    des["architecture"] = "hinf"
+    assert "H-infinity mixed-sensitivity" in _architecture(des)[2]

@@ -296,6 +296,9 @@ def _architecture(des: dict) -> list[str]:
     zt_hz = des.get("closed_loop_min_damping_twin_hz")
     ring = (f" Least-damped closed-loop pole with the linear twin (50 Hz - 1 kHz): zeta = {zt:.4f} at "
             f"{zt_hz:.0f} Hz." if zt is not None and zt_hz is not None else "")
+    exported = des.get("exported_controller") or {}
+    if exported.get("architecture", des.get("architecture", "hinf")) != "hinf":
+        return ["## Controller", "", _exported_text(exported, des), ""]
     if dl is None:
         text = (f"Controller: the paper's single H-infinity loop (paper weights, {order}-state design model, "
                 f"{des.get('controller_order')} states).{ring}")
@@ -307,6 +310,23 @@ def _architecture(des: dict) -> list[str]:
                 f"lightly damped in closed loop; `nanosim pipeline --paper-design` reproduces that set-up."
                 f"{ring}")
     return ["## Controller", "", text, ""]
+
+
+def _exported_text(exported: dict, des: dict) -> str:
+    """The controller the Sec. 5 numbers were measured with, when it is a bench design, not the H-infinity one."""
+    p = exported.get("parameters", {})
+    text = (f"Controller: the bench's `{exported.get('architecture')}` design "
+            f"({exported.get('controller_order', '?')} states), tuning rule: {exported.get('tuning_rule', 'n/a')}.")
+    pf = p.get("reference_prefilter")
+    if pf and pf.get("notches"):
+        notches = ", ".join(f"{n['freq_hz']:.0f} Hz (zeta {n['zeta_zero']:.3f} -> {n['zeta_pole']:g})"
+                            for n in pf["notches"])
+        text += (f" Reference prefilter (two degrees of freedom, {pf['prefilter_states']} of the states): notches at "
+                 f"{notches}, the closed loop's ringing pairs; the feedback loop, its margins and mu are those of "
+                 "the design without it.")
+    if des.get("architecture_note"):
+        text += f" {des['architecture_note']}."
+    return text
 
 
 def pass_count(run_dir) -> tuple[int, int]:
