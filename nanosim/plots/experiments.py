@@ -109,7 +109,13 @@ def fig_bandwidth(r, predicted=None):
     t = (r.step.t_s - r.step.t_s[k0]) * 1e3
     ax[2].plot(t, r.step.ref_um[:, 0], label="reference")
     ax[2].plot(t, r.step.y_um[:, 0], label="X probe")
-    ax[2].set_xlabel("time (ms)")
+    final = r.step.ref_um[-1, 0]
+    y0 = r.step.y_um[:k0, 0].mean() if k0 else 0.0
+    for lim in (y0 + 0.98 * (final - y0), y0 + 1.02 * (final - y0)):
+        ax[2].axhline(lim, color="0.5", ls=":", lw=0.8)
+    # the settling happens in the first tens of ms; the whole record is 300 ms
+    ax[2].set_xlim(-5.0, min(t[-1], max(40.0, 2 * r.settling_ms if np.isfinite(r.settling_ms) else t[-1])))
+    ax[2].set_xlabel("time (ms); dotted: the 2 % settling band")
     ax[2].set_ylabel("X (um)")
     ax[2].set_title(f"(c) 2 um step: rise {r.rise_ms:.1f} ms, peak {r.peak_ms:.1f} ms, settle {r.settling_ms:.1f} ms, "
                     f"overshoot {r.overshoot_percent:.1f} %", fontsize=9)
