@@ -66,7 +66,7 @@ identified model). Without the disturbance observer the step settles in 8.25-10.
 The reference prefilter (session 8, ``reference_prefilter=True``, :mod:`~nanosim.design.architectures.prefilter`)
 removes the ring without touching the feedback: a notch on the reference at that pair, the same on every axis.
 On MuJoCo the 2 um step of the same feedback designs settles in 6.0 / 6.0 / 10.5 / 6.0 / 6.0 ms (seeds 0-4; the
-tail alone is left); the price is ~0.45 ms of reference delay (S bandwidth reference-to-error 53 -> 38-39 Hz, the
+tail alone is left); the price is ~0.47 ms of reference delay (S bandwidth reference-to-error 53 -> 43-45 Hz, the
 5-40 Hz tracking error +20 %); contour error is unchanged, since X and Y see the same filter.
 
 Not a criterion, reported as ``parameters["spectral_radius_small_signal_gain"]``: the loop at
