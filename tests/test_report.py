@@ -78,3 +78,43 @@ def test_controller_section_describes_the_exported_bench_design_not_the_hinf_ref
     des.pop("exported_controller")
     des["architecture"] = "hinf"
     assert "H-infinity mixed-sensitivity" in _architecture(des)[2]
+
+
+def test_controllers_section_scores_the_run_against_the_bench_acceptance(tmp_path):
+    """metrics.json + robustness.json -> the acceptance table: a 12 ms step and an unstable-centre mu fail, the rest
+    pass; the feedback-loop S bandwidth is not measured by the pipeline (n/a)."""
+    (tmp_path / "design.json").write_text(json.dumps({"architecture": "lqg", "exported_controller": {
+        "architecture": "lqg", "tuning_rule": "rule", "controller_order": 49, "parameters": {}}}))
+    (tmp_path / "metrics.json").write_text(json.dumps({
+        "bandwidth_S_hz": 44.0, "step_2um": {"settling_ms": 12.0, "overshoot_percent": 0.3, "rise_ms": 3.5},
+        "resolution_sigma_table_nm": {"closed_loop": 1.8},
+        "contouring": [{"speed_um_s": 1000.0, "mean_error_nm": 23.0, "max_error_nm": 150.0}]}))
+    (tmp_path / "robustness.json").write_text(json.dumps({"plants": {"identified": {
+        "dm_input_alpha": 0.45, "dm_output_alpha": 0.43, "mu_centre_stable": False, "mu_peak": None}}}))
+    md, _ = write_report(tmp_path)
+    text = md.read_text()
+    sec = text[text.index("## Controllers"):text.index("## Paper vs simulation")]
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+            for line in sec.splitlines() if line.startswith("| ") and "criterion" not in line}
+    assert rows["S bandwidth, reference to error (measured)"] == [">= 32 Hz", "44.0 Hz", "yes"]
+    assert rows["2 um step, 2 % settling"] == ["<= 11 ms", "12.0 ms", "**NO**"]
+    assert rows["multiloop disk margin alpha (identified model = the loop as run)"] == [">= 0.4", "0.43", "yes"]
+    assert rows["mu upper bound over the uncertainty set"] == ["< 1", "inf", "**NO**"]
+    assert rows["S bandwidth of the feedback loop (measured, PRBS at the reading)"] == [">= 32 Hz", "n/a", "n/a"]
+    assert "5 of 7 measured criteria met" in sec
+    assert "not the exported `lqg` controller" in text
+
+
+def test_seeds_summary_takes_the_worst_seed_per_criterion():
+    from nanosim.pipeline.scorecard import run_acceptance
+    from nanosim.pipeline.seeds import _acceptance_summary
+
+    def seed(settle, bw):
+        return {"acceptance": {"controller": "lqg", "controller_order": 49, "criteria": run_acceptance(
+            {"bandwidth_S_hz": bw, "step_2um": {"settling_ms": settle, "overshoot_percent": 0.3}}, None)}}
+    acc = _acceptance_summary([0, 1, 2], {0: seed(6.0, 45.0), 1: seed(10.5, 43.0), 2: seed(11.5, 44.0)})
+    rows = {r["key"]: r for r in acc["criteria"]}
+    assert rows["step_settling_ms"]["worst"] == 11.5 and rows["step_settling_ms"]["every_seed"] is False
+    assert rows["bandwidth_S_hz"]["worst"] == 43.0 and rows["bandwidth_S_hz"]["every_seed"] is True
+    assert rows["mu_peak"]["every_seed"] is None and rows["mu_peak"]["worst"] is None
+    assert acc["met_on_every_seed"] == 2 and acc["measured"] == 3      # bandwidth, overshoot; settling fails

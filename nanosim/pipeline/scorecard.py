@@ -26,7 +26,7 @@ from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
 
 __all__ = ["Metric", "METRICS", "ACCEPTANCE", "DEFAULT_RULE", "flatten_metrics", "robustness_metrics", "scorecard",
-           "choose_default", "write_scorecard", "markdown_table"]
+           "choose_default", "write_scorecard", "markdown_table", "run_acceptance", "format_value"]
 
 
 @dataclass(frozen=True)
@@ -169,6 +169,34 @@ def robustness_metrics(doc: dict | None, bandwidth_So_model_hz: float | None = N
     out["bandwidth_So_model_hz"] = _num(bandwidth_So_model_hz)
     out["sampled_all_stable"] = ident.get("sampled_all_stable")
     return out
+
+
+def run_acceptance(metrics_doc: dict | None, robustness_doc: dict | None) -> list[dict]:
+    """The acceptance criteria (:data:`ACCEPTANCE`) of one run folder's ``metrics.json`` and ``robustness.json``.
+
+    Returns
+    -------
+    list of dict
+        Per criterion: ``key``, ``label``, ``unit``, ``criterion`` (text), ``higher_is_better``, ``value``
+        (None when the run did not measure it, e.g. the feedback-loop S bandwidth outside ``nanosim
+        compare``) and ``pass`` (True, False or None).
+    """
+    vals = {**flatten_metrics(metrics_doc or {}), **robustness_metrics(robustness_doc)}
+    out = []
+    for key in ACCEPTANCE:
+        m = _BY_KEY[key]
+        v = vals.get(key)
+        out.append({"key": key, "label": m.label, "unit": m.unit, "criterion": m.criterion,
+                    "higher_is_better": m.higher_is_better, "value": v, "pass": m.passes(v) if v is not None else None})
+    return out
+
+
+def format_value(v, unit: str = "", with_unit: bool = False) -> str:
+    """A scorecard number as text: ``n/a``, ``inf`` (``not settled`` for a time in ms), else 3 significant digits;
+    ``with_unit`` appends ``unit`` to a number.
+    """
+    txt = _fmt(v, unit)
+    return f"{txt} {unit}" if with_unit and unit and v is not None and math.isfinite(v) else txt
 
 
 def _stats(values: list, metric: Metric) -> dict:

@@ -198,7 +198,7 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
                                                            "task_seconds_all_seeds": task_seconds}, "seed": s})
         write_report(d)
         ok, nb = pass_count(d)
-        per_seed[s] = {"in_band": ok, "banded": nb, "metrics": _key_metrics(d)}
+        per_seed[s] = {"in_band": ok, "banded": nb, "metrics": _key_metrics(d), "acceptance": _acceptance(d)}
     timings["report"] = round(time.perf_counter() - t, 2)
     doc = _summary(seeds, per_seed, timings)
     doc["task_seconds_all_seeds"] = task_seconds
@@ -216,6 +216,22 @@ def _key_metrics(run: Path) -> dict:
     return {k: flat.get(k) for k in _KEY}
 
 
+def _acceptance(run: Path) -> dict:
+    """The controller bench's acceptance on one seed's run folder (:func:`~nanosim.pipeline.scorecard.run_acceptance`)
+    and the exported controller's name and order.
+    """
+    from nanosim.pipeline.scorecard import run_acceptance
+
+    def load(name):
+        p = run / name
+        return json.loads(p.read_text()) if p.is_file() else None
+    des = load(A.DESIGN_JSON) or {}
+    exported = des.get("exported_controller") or {}
+    return {"controller": exported.get("architecture", des.get("architecture")),
+            "controller_order": exported.get("controller_order", des.get("controller_order")),
+            "criteria": run_acceptance(load(A.METRICS_JSON), load(A.ROBUSTNESS_JSON))}
+
+
 def _summary(seeds, per_seed, timings) -> dict:
     counts = [per_seed[s]["in_band"] for s in seeds]
     banded = [per_seed[s]["banded"] for s in seeds]
@@ -230,7 +246,26 @@ def _summary(seeds, per_seed, timings) -> dict:
             "banded_per_seed": dict(zip(map(str, seeds), banded)),
             "in_band_mean": float(np.mean(counts)), "in_band_worst": int(min(counts)),
             "banded": int(max(banded)), "all_seeds_all_bands": all(c == b for c, b in zip(counts, banded)),
-            "metrics": rows, "stage_seconds": timings, "wall_seconds": round(sum(timings.values()), 2)}
+            "metrics": rows, "stage_seconds": timings, "wall_seconds": round(sum(timings.values()), 2),
+            "acceptance": _acceptance_summary(seeds, per_seed)}
+
+
+def _acceptance_summary(seeds, per_seed) -> dict:
+    """Per criterion: the value and verdict on every seed, the worst value and whether every seed passes."""
+    first = per_seed[seeds[0]].get("acceptance") or {}
+    rows = []
+    for i, c in enumerate(first.get("criteria", [])):
+        cells = [per_seed[s]["acceptance"]["criteria"][i] for s in seeds]
+        vals = [x["value"] for x in cells]
+        known = [v for v in vals if v is not None]
+        worst = (min(known) if c["higher_is_better"] else max(known)) if known else None
+        verdicts = [x["pass"] for x in cells]
+        rows.append({"key": c["key"], "label": c["label"], "unit": c["unit"], "criterion": c["criterion"],
+                     "per_seed": vals, "worst": worst,
+                     "every_seed": None if any(v is None for v in verdicts) else all(verdicts)})
+    return {"controller": first.get("controller"), "controller_order": first.get("controller_order"),
+            "criteria": rows, "met_on_every_seed": sum(1 for r in rows if r["every_seed"]),
+            "measured": sum(1 for r in rows if r["every_seed"] is not None)}
 
 
 def _report(doc: dict) -> str:
@@ -246,6 +281,22 @@ def _report(doc: dict) -> str:
         vals = " | ".join("n/a" if (v is None or not math.isfinite(v)) else f"{v:.4g}" for v in r["per_seed"])
         f = (lambda x: "n/a" if x is None else f"{x:.4g}")
         lines.append(f"| `{k}` | {vals} | {f(r['mean'])} | {f(r['min'])} | {f(r['max'])} |")
+    acc = doc.get("acceptance") or {}
+    if acc.get("criteria"):
+        from nanosim.pipeline.scorecard import format_value
+        lines += ["", "## Controllers", "",
+                  f"Exported controller: `{acc['controller']}` ({acc['controller_order']} states), designed on each "
+                  f"seed's own identified model. The controller bench's acceptance (issue 13), worst case over the "
+                  f"seeds: **{acc['met_on_every_seed']} of {acc['measured']} measured criteria met on every seed** "
+                  "(the feedback loop's own S bandwidth is measured by `nanosim compare`; every seed's report has "
+                  "the bench and its default rule).", "",
+                  "| criterion | target | " + " | ".join(f"seed {s}" for s in seeds) + " | worst | every seed |",
+                  "|---|---|" + "---|" * (len(seeds) + 2)]
+        for r in acc["criteria"]:
+            vals = " | ".join(format_value(v, r["unit"]) for v in r["per_seed"])
+            ok = "n/a" if r["every_seed"] is None else ("yes" if r["every_seed"] else "**NO**")
+            lines.append(f"| {r['label']} | {r['criterion']} | {vals} | "
+                         f"{format_value(r['worst'], r['unit'], with_unit=True)} | {ok} |")
     lines += ["", "Stage wall times (s), all seeds: " + ", ".join(f"{k} {v:.1f}" for k, v in
                                                                     doc["stage_seconds"].items()), ""]
     return "\n".join(lines)

@@ -34,8 +34,9 @@ import numpy as np
 
 from nanosim.design.architectures.common import DT_S, LOOP_DELAY_SAMPLES, mode_groups
 
-__all__ = ["RingPair", "ringing_pairs", "reference_notch", "matched_notch", "with_reference_prefilter", "design_reference_prefilter",
-           "RING_ZETA_MAX", "RING_MIN_STEP_FRACTION", "RING_MIN_HZ", "NOTCH_POLE_ZETA", "GROUP_REL_GAP"]
+__all__ = ["RingPair", "ringing_pairs", "reference_notch", "matched_notch", "with_reference_prefilter",
+           "design_reference_prefilter", "RING_ZETA_MAX", "RING_MIN_STEP_FRACTION", "RING_MIN_HZ", "NOTCH_POLE_ZETA",
+           "GROUP_REL_GAP"]
 
 RING_ZETA_MAX = 0.1
 RING_MIN_STEP_FRACTION = 0.01
