@@ -131,3 +131,13 @@ def test_prefilter_rejects_mismatched_inputs_and_sample_times():
         with_reference_prefilter(ct.ss([], [], [], [[1.0, 0.0, 0.0]], DT_S), F, 1)
     with pytest.raises(ValueError, match="F: expected the controller's sample time"):
         with_reference_prefilter(ct.ss([], [], [], [[1.0]], 2 * DT_S), F, 1)
+
+
+def test_matched_notch_rejects_frequencies_above_nyquist_and_bad_damping():
+    from nanosim.design.architectures.prefilter import matched_notch
+    with pytest.raises(ValueError, match=r"f_hz: expected a frequency in \(0, 2000\) Hz"):
+        matched_notch(2500.0, 0.7, 0.05)
+    with pytest.raises(ValueError, match=r"zeta_zero: expected a damping ratio in \[0, 1\], got -0.1"):
+        matched_notch(450.0, 0.7, -0.1)
+    N = matched_notch(450.0, 0.7, 0.0)                               # zeros on the unit circle: a null at 450 Hz
+    assert abs(freqresp_z(N, np.array([450.0]))[0, 0, 0]) < 1e-9

@@ -144,6 +144,11 @@ def matched_notch(f_hz: float, zeta_pole: float, zeta_zero: float, dt: float = D
     ``exp(dt w (-zz +- j sqrt(1 - zz^2)))`` they are meant to cancel.
     """
     import control as ct
+    if not 0.0 < f_hz < 0.5 / dt:
+        raise ValueError(f"f_hz: expected a frequency in (0, {0.5 / dt:g}) Hz (below Nyquist), got {f_hz!r}")
+    for name, z in (("zeta_pole", zeta_pole), ("zeta_zero", zeta_zero)):
+        if not 0.0 <= z <= 1.0:
+            raise ValueError(f"{name}: expected a damping ratio in [0, 1], got {z!r}")
     w = 2 * np.pi * f_hz
 
     def pair(zeta):
