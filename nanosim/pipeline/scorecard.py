@@ -138,7 +138,7 @@ def flatten_metrics(m: dict) -> dict:
         if c.get("waveform") == "sine" and abs(c.get("freq_hz", 0) - 20.0) < 1e-6:
             out["tracking_rms_sine_20hz_nm"] = _num(c.get("rms_error_nm"))
     ss = m.get("small_steps") or {}
-    if ss:
+    if ss.get("plateau_means_nm") is not None and ss.get("targets_nm") is not None:
         out["small_steps_max_error_nm"] = float(np.max(np.abs(np.subtract(ss["plateau_means_nm"],
                                                                            ss["targets_nm"]))))
     hy = m.get("hysteresis") or {}
