@@ -184,20 +184,17 @@ def with_reference_prefilter(K, F, n_error: int):
     I_n = np.eye(n)
     Ab, Bb, Cb, Db = (np.kron(I_n, m) for m in (Fa, Fb, Fc, Fd))        # F on each channel
     nf = Ab.shape[0]
-    # M: [e; y] -> [F (e + y) - y; y]
+    # M: [e; y] -> [F (e + y) - y; y], or [F (e + y) - y] for a one-degree-of-freedom K
     Bm = np.hstack([Bb, Bb])
-    Cm = np.vstack([Cb, np.zeros((n, nf))])
-    Dm = np.block([[Db, Db - I_n], [np.zeros((n, n)), I_n]])
-    M = ct.ss(Ab, Bm, Cm, Dm, K.dt)
-    if K.ninputs == n:       # one degree of freedom: K sees e' only
-        M = ct.ss(Ab, Bm, Cm[:n], Dm[:n], K.dt)
+    Cm = np.vstack([Cb, np.zeros((n, nf))])[:K.ninputs]
+    Dm = np.block([[Db, Db - I_n], [np.zeros((n, n)), I_n]])[:K.ninputs]
     Ka, Kb, Kc, Kd = (np.asarray(m, float) for m in (K.A, K.B, K.C, K.D))
     nk = Ka.shape[0]
     # series M -> K, states [x_F; x_K]
-    A = np.block([[Ab, np.zeros((nf, nk))], [Kb @ np.asarray(M.C), Ka]])
-    B = np.vstack([Bm, Kb @ np.asarray(M.D)])
-    C = np.hstack([Kd @ np.asarray(M.C), Kc])
-    D = Kd @ np.asarray(M.D)
+    A = np.block([[Ab, np.zeros((nf, nk))], [Kb @ Cm, Ka]])
+    B = np.vstack([Bm, Kb @ Dm])
+    C = np.hstack([Kd @ Cm, Kc])
+    D = Kd @ Dm
     return ct.ss(A, B, C, D, K.dt)
 
 
