@@ -420,9 +420,11 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
     prefilter = None
     if reference_prefilter:
         from nanosim.design.architectures.prefilter import design_reference_prefilter
+        K_fb = K
         K, prefilter = design_reference_prefilter(Gd, K, Gd.noutputs, delay_samples=delay_samples, dt=dt)
+        if K is not K_fb:           # the reference path changed: its response to the reference too
+            r = loop_response(Gf, f, *split_2dof(K, Gd.noutputs), delay_samples=delay_samples, dt=dt)
     Ke, Ky = split_2dof(K, Gd.noutputs)
-    r = loop_response(Gf, f, Ke, Ky, delay_samples=delay_samples, dt=dt)
     Pup = ModalPlant(Gd, dt).state_space(1.0, 1.0, SMALL_SIGNAL_GAIN, delay_samples)
     params = {"rule": "robust" if robust else "nominal", "robust_rule_met": met, "uncertainty_vertices": v,
               "mu_peak": mu,
