@@ -71,13 +71,13 @@ def test_controller_section_describes_the_exported_bench_design_not_the_hinf_ref
                                    "parameters": {"reference_prefilter": {
                                        "notches": [{"freq_hz": 452.2, "zeta_zero": 0.063, "zeta_pole": 0.7}],
                                        "prefilter_states": 6}}}}
-    text = _architecture(des)[2]
+    text = _architecture(des)
     assert "`lqg` design (49 states)" in text and "LQG rule" in text
     assert "notches at 452 Hz (zeta 0.063 -> 0.7)" in text and "6 of the states" in text
     assert "H-infinity mixed-sensitivity" not in text
     des.pop("exported_controller")
     des["architecture"] = "hinf"
-    assert "H-infinity mixed-sensitivity" in _architecture(des)[2]
+    assert "H-infinity mixed-sensitivity" in _architecture(des)
 
 
 def test_controllers_section_scores_the_run_against_the_bench_acceptance(tmp_path):

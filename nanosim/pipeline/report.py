@@ -286,19 +286,36 @@ def _twin_rows(run: Path):
     return [(label, _get(mj, *keys), _get(tw, *keys)) for label, keys in TWIN_KEYS]
 
 
-def _architecture(des: dict) -> list[str]:
+def exported_controller(des: dict) -> tuple[str, int | None]:
+    """``(architecture, order)`` of the controller ``controller.npz`` holds, from ``design.json``."""
+    e = des.get("exported_controller") or {}
+    return (e.get("architecture", des.get("architecture", "hinf")),
+            e.get("controller_order", des.get("controller_order")))
+
+
+def run_acceptance_doc(run) -> dict:
+    """The exported controller and the controller bench's acceptance
+    (:func:`~nanosim.pipeline.scorecard.run_acceptance`) of one run folder.
+    """
+    from nanosim.pipeline.scorecard import run_acceptance
+    run = Path(run)
+    arch, order = exported_controller(_load(run, A.DESIGN_JSON))
+    return {"controller": arch, "controller_order": order,
+            "criteria": run_acceptance(_load_or_none(run, A.METRICS_JSON), _load_or_none(run, A.ROBUSTNESS_JSON))}
+
+
+def _architecture(des: dict) -> str | None:
     """One paragraph on the controller structure the Sec. 5 numbers were measured with."""
     if not des:
-        return []
+        return None
     order = des.get("reduced_order")
     dl = des.get("damping_loop")
     zt = des.get("closed_loop_min_damping_twin")
     zt_hz = des.get("closed_loop_min_damping_twin_hz")
     ring = (f" Least-damped closed-loop pole with the linear twin (50 Hz - 1 kHz): zeta = {zt:.4f} at "
             f"{zt_hz:.0f} Hz." if zt is not None and zt_hz is not None else "")
-    exported = des.get("exported_controller") or {}
-    if exported.get("architecture", des.get("architecture", "hinf")) != "hinf":
-        return ["## Controller", "", _exported_text(exported, des), ""]
+    if exported_controller(des)[0] != "hinf":
+        return _exported_text(des.get("exported_controller") or {}, des)
     if dl is None:
         text = (f"Controller: the paper's single H-infinity loop (paper weights, {order}-state design model, "
                 f"{des.get('controller_order')} states).{ring}")
@@ -309,7 +326,7 @@ def _architecture(des: dict) -> list[str]:
                 f"{dl['lowpass_hz']:g} Hz): u = K e + Ky y. The paper's single loop leaves the first XY pair "
                 f"lightly damped in closed loop; `nanosim pipeline --paper-design` reproduces that set-up."
                 f"{ring}")
-    return ["## Controller", "", text, ""]
+    return text
 
 
 def _exported_text(exported: dict, des: dict) -> str:
@@ -359,7 +376,7 @@ def _blocks(run: Path):
         out.append(("p", "Stage wall times (s): " + ", ".join(f"{k} {v}" for k, v in timing.items())))
     out += _controllers_blocks(run, des)
     if des:
-        exported = (des.get("exported_controller") or {}).get("architecture", des.get("architecture", "hinf"))
+        exported = exported_controller(des)[0]
         if exported != "hinf":
             out += [("h", 2, "Warnings"),
                     ("p", f"These concern the H-infinity reference design that design.json describes, not the "
@@ -400,16 +417,16 @@ def _blocks(run: Path):
 def _controllers_blocks(run: Path, des: dict) -> list:
     """The "Controllers" section: the exported controller, its acceptance on this run, and the bench."""
     from nanosim.design.architectures import BENCH
-    from nanosim.pipeline.scorecard import DEFAULT_RULE, format_value, run_acceptance
+    from nanosim.pipeline.scorecard import DEFAULT_RULE, format_value
     arch = _architecture(des)
-    met, rob = _load(run, A.METRICS_JSON), _load(run, A.ROBUSTNESS_JSON)
-    if not arch and not met:
+    has_metrics = (run / A.METRICS_JSON).is_file()
+    if not arch and not has_metrics:
         return []
     out = [("h", 2, "Controllers")]
     if arch:
-        out.append(("p", arch[2]))
-    if met:
-        rows = run_acceptance(met, rob)
+        out.append(("p", arch))
+    if has_metrics:
+        rows = run_acceptance_doc(run)["criteria"]
         n_ok = sum(1 for r in rows if r["pass"])
         n_meas = sum(1 for r in rows if r["pass"] is not None)
         out += [("p", f"The controller bench's acceptance (issue 13: the paper's measured figures, a multiloop disk "

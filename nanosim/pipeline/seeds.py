@@ -175,7 +175,7 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
     identification, design and experiments are tasks on one pool of worker processes
     (:func:`_schedule`).
     """
-    from nanosim.pipeline.report import pass_count, write_report
+    from nanosim.pipeline.report import pass_count, run_acceptance_doc, write_report
     from nanosim.pipeline.scaleout import cpu_workers
 
     cfg = config or PipelineConfig()
@@ -198,7 +198,8 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
                                                            "task_seconds_all_seeds": task_seconds}, "seed": s})
         write_report(d)
         ok, nb = pass_count(d)
-        per_seed[s] = {"in_band": ok, "banded": nb, "metrics": _key_metrics(d), "acceptance": _acceptance(d)}
+        per_seed[s] = {"in_band": ok, "banded": nb, "metrics": _key_metrics(d),
+                       "acceptance": run_acceptance_doc(d)}
     timings["report"] = round(time.perf_counter() - t, 2)
     doc = _summary(seeds, per_seed, timings)
     doc["task_seconds_all_seeds"] = task_seconds
@@ -214,22 +215,6 @@ def _key_metrics(run: Path) -> dict:
     p = run / A.METRICS_JSON
     flat = flatten_metrics(json.loads(p.read_text())) if p.is_file() else {}
     return {k: flat.get(k) for k in _KEY}
-
-
-def _acceptance(run: Path) -> dict:
-    """The controller bench's acceptance on one seed's run folder (:func:`~nanosim.pipeline.scorecard.run_acceptance`)
-    and the exported controller's name and order.
-    """
-    from nanosim.pipeline.scorecard import run_acceptance
-
-    def load(name):
-        p = run / name
-        return json.loads(p.read_text()) if p.is_file() else None
-    des = load(A.DESIGN_JSON) or {}
-    exported = des.get("exported_controller") or {}
-    return {"controller": exported.get("architecture", des.get("architecture")),
-            "controller_order": exported.get("controller_order", des.get("controller_order")),
-            "criteria": run_acceptance(load(A.METRICS_JSON), load(A.ROBUSTNESS_JSON))}
 
 
 def _summary(seeds, per_seed, timings) -> dict:
