@@ -125,7 +125,7 @@ def test_controller_bank_pads_orders_and_checks_members(plants):
     bank.reset_at(y)
     single = [DiscreteController(small), DiscreteController(c2)]
     for b, d in enumerate(single):
-        d.reset(measurement_V=y[b])
+        d.reset_at(y[b])
     r = np.zeros((2, 3))
     for _ in range(5):
         u = bank.feedback(r, y)

@@ -198,12 +198,12 @@ def test_readme_pid_and_a_bench_design_run_through_nanosim_compare(tmp_path):
 # viewer: switching controllers without a kick
 # ----------------------------------------------------------------------------------------
 def test_bumpless_switch_keeps_the_command(designs, model):
-    from nanosim.viewer.bench import bumpless_state
+    from nanosim.design.controller import bumpless_state
     for name in ("hinf-damped", "pi-notch", "feedforward"):
         ctrl = designs[name].controller()
         y = np.array([0.3, -0.2, -5.0])                     # a reading away from zero (Z probe offset)
         u = np.array([0.4, -0.1, 0.25])                     # the command the previous controller applied
-        x = bumpless_state(ctrl, y, u)
+        x = bumpless_state(ctrl.config, y, u)
         ctrl.reset(x)
         u0 = ctrl.step(np.zeros(3), y) if ctrl.two_dof else ctrl.step(np.zeros(3))
         np.testing.assert_allclose(u0, u, atol=1e-9, err_msg=name)

@@ -164,3 +164,43 @@ def test_closed_loop_tracking_with_designed_controller():
     ys = np.array(ys)
     np.testing.assert_allclose(ys[-1], r, atol=2e-3)
     assert np.all(np.abs(ys) < 1.0)                             # no runaway (wrong sign would diverge)
+
+
+# --- starting a loop at a reading: reset_at is bumpless ---------------------------------------------
+def _leaky_two_dof(lam=0.99998, b=0.5, c=40.0):
+    """[e; y] controller whose leaky integrator also integrates the measurement (as an LQG observer's
+    integrator does): x1+ = lam x1 + e + b y, x2+ = 0.9 x2 + 0.1 y, u = c (1 - lam) x1 + x2 + 0.1 e.
+    Its plain equilibrium at a constant reading y holds the output u_eq = (c b + 1) y per axis."""
+    A = np.diag([lam, 0.9])
+    B = np.array([[1.0, b], [0.0, 0.1]])
+    C = np.array([[c * (1 - lam), 1.0]])
+    D = np.array([[0.1, 0.0]])
+    return ControllerConfig(A, B, C, D, DT, n_error=1), c * b + 1.0
+
+
+def test_reset_at_starts_with_the_command_held_and_no_kick():
+    cfg, per_volt = _leaky_two_dof()
+    y = np.array([-5.0])                                     # the home reading in Z: -25 um
+    plain = DiscreteController(cfg)
+    plain.reset(measurement_V=y)                             # the equilibrium: a kick of per_volt * y
+    np.testing.assert_allclose(plain.step(np.zeros(1), y), per_volt * y, rtol=1e-9)
+    ctrl = DiscreteController(cfg)
+    ctrl.reset_at(y)                                         # bumpless: the stage's command at home, 0 V
+    u = np.array([ctrl.step(np.zeros(1), y)[0] for _ in range(40)])
+    assert abs(u[0]) < 1e-12
+    # afterwards only the slow mode moves it: at most (1 - lam^k) of the equilibrium output
+    k = np.arange(40)
+    assert np.all(np.abs(u) <= (1 - 0.99998 ** k) * abs(per_volt * y[0]) * (1 + 1e-9) + 1e-12)
+    ctrl.reset_at(y, command_V=[1.25])                       # a command the actuators already hold
+    np.testing.assert_allclose(ctrl.step(np.zeros(1), y), [1.25], atol=1e-12)
+    with pytest.raises(ValueError, match="command_V: expected 1"):
+        ctrl.reset_at(y, command_V=[1.0, 2.0])
+    with pytest.raises(ValueError, match="measurement_V"):
+        ctrl.reset_at([np.nan])
+
+
+def test_reset_at_of_a_one_dof_controller_is_the_zero_state(npz_path):
+    ctrl = DiscreteController.from_npz(npz_path[0])
+    ctrl.reset(np.ones(ctrl.config.n_states))
+    ctrl.reset_at(np.array([0.3, -0.2, -5.0]))
+    assert not ctrl.state.any()

@@ -93,6 +93,14 @@ def test_lqg_on_the_identified_model_margin_bandwidth_and_dac_noise(model):
     var_ol = np.trapezoid((np.abs(G[:, 0, :]) ** 2).sum(axis=1), fn)
     assert np.sqrt(var_cl / var_ol) < 1 / 4
     assert d.parameters["input_noise_V"] == constants.DAC_WHITE_NOISE_V
+    # started at the home reading (Z probe at -25 um): the plain equilibrium holds volts through the
+    # measurement path -- a kick -- while reset_at starts at the stage's zero command
+    ctrl = d.controller()
+    y_home = np.array([0.0, 0.0, -25.0]) / constants.SENSOR_UM_PER_V
+    ctrl.reset(measurement_V=y_home)
+    assert np.abs(ctrl.step(np.zeros(3), y_home)).max() > 5.0
+    ctrl.reset_at(y_home)
+    assert np.abs(ctrl.step(np.zeros(3), y_home)).max() < 1e-9
 
 
 def test_design_config_exports_lqg_by_default_and_the_paper_design_stays_hinf():

@@ -36,7 +36,7 @@ import numpy as np
 
 from nanosim import fileio
 
-__all__ = ["ControllerConfig", "DiscreteController"]
+__all__ = ["ControllerConfig", "DiscreteController", "bumpless_state"]
 
 _REQUIRED = ("Akd", "Bkd", "Ckd", "Dkd", "dt")
 _OPTIONAL = ("n_error",)
@@ -147,6 +147,56 @@ class ControllerConfig:
         return float(np.max(np.abs(np.linalg.eigvals(self.Akd)))) if self.n_states else 0.0
 
 
+def bumpless_state(config: ControllerConfig, measurement_V, command_V=None) -> np.ndarray:
+    """A state that starts a loop at the reading ``measurement_V`` with the output ``command_V``.
+
+    The equilibrium for zero error at the reading, ``x = (I - Akd)^-1 Bkd [0; y]`` (zero for a
+    one-degree-of-freedom controller), plus a correction along the controller's slowest modes
+    (the integrators: eigenvalues of ``Akd`` nearest ``z = 1``) that makes the first output
+    ``u = Ckd x + Dkd [0; y]`` equal ``command_V``; with fewer slow modes than commands the
+    least-squares correction is used. The slow modes then carry the command and move at their
+    leak rate, so a loop started this way does not kick.
+
+    Parameters
+    ----------
+    config : ControllerConfig
+    measurement_V : array_like, shape (n_measurement,)
+        The reading [sensor V] (ignored by a one-degree-of-freedom controller).
+    command_V : array_like, shape (n_out,), optional
+        The command the actuators hold [controller V]; default zero (a stage at rest at home).
+
+    Returns
+    -------
+    ndarray, shape (n_states,)
+    """
+    n = config.n_states
+    u_target = np.zeros(config.n_out) if command_V is None else _floats("command_V", command_V)
+    if u_target.shape != (config.n_out,) or not np.isfinite(u_target).all():
+        raise ValueError(f"command_V: expected {config.n_out} finite values, got shape {u_target.shape}")
+    inp = np.zeros(config.n_in)
+    x_eq = np.zeros(n)
+    if config.n_measurement:
+        y = _floats("measurement_V", measurement_V)
+        if y.shape != (config.n_measurement,) or not np.isfinite(y).all():
+            raise ValueError(f"measurement_V: expected {config.n_measurement} finite values, got shape {y.shape}")
+        inp[config.n_error:] = y
+        if n:
+            x_eq = np.linalg.solve(np.eye(n) - config.Akd, config.Bkd @ inp)
+    du = u_target - (config.Ckd @ x_eq + config.Dkd @ inp)
+    if n == 0 or not du.any():
+        return x_eq
+    lam, V = np.linalg.eig(config.Akd)
+    order = np.argsort(np.abs(1.0 - lam))
+    dx = np.zeros(n)
+    for k in range(min(n, config.n_out), n + 1):      # as few (as slow) modes as reproduce the command
+        Vs = V[:, order[:k]]
+        coef, *_ = np.linalg.lstsq(config.Ckd @ Vs, du.astype(complex), rcond=None)
+        dx = (Vs @ coef).real
+        if np.abs(config.Ckd @ dx - du).max() <= 1e-9 * max(1.0, np.abs(du).max()):
+            break
+    return x_eq + dx
+
+
 class DiscreteController:
     """Discrete state-space controller with internal state.
 
@@ -240,14 +290,19 @@ class DiscreteController:
         self._xe[: self._n] = x0
         self._xe[self._n:] = 0.0
 
-    def reset_at(self, measurement_V) -> None:
-        """Start a loop at the reading ``measurement_V`` [sensor V]: zero state, or for a
-        two-degree-of-freedom controller the equilibrium at that reading (see :meth:`reset`).
+    def reset_at(self, measurement_V, command_V=None) -> None:
+        """Start a loop at the reading ``measurement_V`` [sensor V] without a kick: the first
+        command for zero error equals ``command_V`` [controller V] (default zero, a stage at rest
+        at home); see :func:`bumpless_state`. A one-degree-of-freedom controller started at zero
+        command gets the zero state.
+
+        The plain equilibrium at the reading (:meth:`reset` with ``measurement_V``) is not a
+        bumpless start: with integrators that leak its output is whatever holds the reading
+        through the measurement path (tens of volts for the LQG designs at the home reading).
         """
         if self.two_dof:
-            self.reset(measurement_V=measurement_V)
-        else:
-            self.reset()
+            self._check("measurement_V", measurement_V, self._nin - self._ne)
+        self.reset(bumpless_state(self.config, measurement_V, command_V))
 
     # --- stepping ----------------------------------------------------------------------
     def feedback(self, reference_V, measurement_V) -> np.ndarray:

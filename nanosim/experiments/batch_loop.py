@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nanosim.design.controller import ControllerConfig, DiscreteController
+from nanosim.design.controller import ControllerConfig, DiscreteController, bumpless_state
 from nanosim.experiments.loop import FS, UM_PER_V, LoopTrace
 from nanosim.plant import batch_kernel
 from nanosim.ramps import raised_cosine
@@ -103,22 +103,19 @@ class BatchController:
         idx = slice(None) if members is None else members
         self._xe[idx] = 0.0
 
-    def reset_at(self, measurement_V, members=None) -> None:
-        """Start at the readings ``measurement_V`` ``(B, n_measurement)``: zero state, or the
-        equilibrium ``x = (I - Akd)^-1 Bkd [0; y]`` for two-degree-of-freedom controllers
-        (as :meth:`DiscreteController.reset_at`).
+    def reset_at(self, measurement_V, members=None, command_V=None) -> None:
+        """Start ``members`` at the readings ``measurement_V`` ``(B, n_measurement)`` without a kick:
+        each member's :func:`~nanosim.design.controller.bumpless_state` for the commands
+        ``command_V`` ``(B, n_out)`` (default zero), as :meth:`DiscreteController.reset_at`.
         """
         idx = np.arange(self.n) if members is None else np.atleast_1d(np.arange(self.n)[members])
-        if not self.two_dof:
-            self._xe[idx] = 0.0
-            return
         y = np.asarray(measurement_V, dtype=float)
         ns = self.n_states
         for b in idx:
             c = self.configs[b]
             x0 = np.zeros(ns)
-            if c.n_states:
-                x0[:c.n_states] = np.linalg.solve(np.eye(c.n_states) - c.Akd, c.Bkd[:, c.n_error:] @ y[b])
+            x0[:c.n_states] = bumpless_state(c, y[b] if c.n_measurement else None,
+                                             None if command_V is None else np.asarray(command_V, float)[b])
             self._xe[b, :ns, 0] = x0
             self._xe[b, ns:, 0] = 0.0
 

@@ -124,17 +124,19 @@ class _ControllerMember:
         return self.bank.two_dof
 
     def reset(self, x0=None, *, measurement_V=None) -> None:
+        """Zero state, or with ``measurement_V`` the bumpless start at that reading (:meth:`reset_at`)."""
         if x0 is not None:
             raise ValueError("x0: a batch member starts from zero or from a measurement")
         if measurement_V is None:
             self.bank.reset(members=[self.member])
         else:
-            y = np.zeros((self.bank.n, len(measurement_V)))
-            y[self.member] = measurement_V
-            self.bank.reset_at(y, members=[self.member])
+            self.reset_at(measurement_V)
 
     def reset_at(self, measurement_V) -> None:
-        self.reset(measurement_V=measurement_V if self.two_dof else None)
+        """The member's :meth:`BatchController.reset_at` (zero command), as :meth:`DiscreteController.reset_at`."""
+        y = np.zeros((self.bank.n, len(measurement_V)))
+        y[self.member] = measurement_V
+        self.bank.reset_at(y, members=[self.member])
 
 
 class _SensorsMember:

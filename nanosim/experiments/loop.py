@@ -53,8 +53,8 @@ def run_closed_loop(stage, controller: DiscreteController, ref_um: np.ndarray, *
     ref_um = np.asarray(ref_um, float)
     y = stage.sensors.step(stage.table_um).reading_V if hasattr(stage, "sensors") else np.zeros(3)
     if settle:
-        if controller.two_dof:      # damping-loop states at equilibrium with the home reading
-            controller.reset(measurement_V=y)
+        if controller.two_dof:      # zero error at the home reading, zero command: no kick (reset_at)
+            controller.reset_at(y)
         n = int(settle_s * FS)
         start = y * UM_PER_V
         w = raised_cosine(n, 0.6)

@@ -2,9 +2,9 @@
 
 ``nanosim view --bench DIR`` loads every ``DIR/<name>/controller.npz`` that ``nanosim compare``
 wrote; the GUI offers them in a dropdown (:func:`add_bench_gui`) and the physics thread
-switches with :func:`switch_controller`: the new controller starts at the equilibrium for
-the current reading (``reset_at``) with its slowest states set so that its first command
-equals the last one applied (bumpless transfer), so the stage does not jump.
+switches with :func:`switch_controller`: the new controller starts at the current reading
+with its first command equal to the last one applied (``reset_at`` with ``command_V``, see
+:func:`nanosim.design.controller.bumpless_state`), so the stage does not jump.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import numpy as np
 
 from nanosim.design.controller import DiscreteController
 
-__all__ = ["load_bench", "bumpless_state", "switch_controller", "add_bench_gui", "apply_bench_choice", "bench_setup",
+__all__ = ["load_bench", "switch_controller", "add_bench_gui", "apply_bench_choice", "bench_setup",
            "OPEN_LOOP"]
 
 OPEN_LOOP = "(open loop)"
@@ -42,39 +42,6 @@ def load_bench(folder) -> dict[str, DiscreteController]:
     return out
 
 
-def bumpless_state(controller: DiscreteController, measurement_V, command_V) -> np.ndarray:
-    """A state that starts ``controller`` at the reading ``measurement_V`` with the output ``command_V``.
-
-    The equilibrium for zero error at the reading (``reset_at``) plus a correction along the
-    controller's slowest modes (the integrators: eigenvalues of ``Akd`` nearest ``z = 1``)
-    that makes ``u = Ckd x + Dkd [0; y]`` equal ``command_V``; with fewer slow modes than
-    commands the least-squares correction is used.
-    """
-    c = controller.config
-    y = np.asarray(measurement_V, float)
-    u_target = np.asarray(command_V, float)
-    controller.reset_at(y)
-    x_eq = controller.state
-    n = c.n_states
-    if n == 0:
-        return x_eq
-    inp = np.zeros(c.n_in)
-    if controller.two_dof:
-        inp[c.n_error:] = y
-    u_eq = c.Ckd @ x_eq + c.Dkd @ inp
-    lam, V = np.linalg.eig(c.Akd)
-    order = np.argsort(np.abs(1.0 - lam))
-    du = (u_target - u_eq).astype(complex)
-    dx = np.zeros(n)
-    for k in range(min(n, c.n_out), n + 1):      # as few (as slow) modes as reproduce the command
-        Vs = V[:, order[:k]]
-        coef, *_ = np.linalg.lstsq(c.Ckd @ Vs, du, rcond=None)
-        dx = (Vs @ coef).real
-        if np.abs(c.Ckd @ dx - du.real).max() <= 1e-9 * max(1.0, np.abs(du).max()):
-            break
-    return x_eq + dx
-
-
 def switch_controller(sim, controller, last_command_V=None) -> None:
     """Make ``controller`` (or None: open loop) the live controller of ``sim`` (:class:`LiveSim`) without a kick."""
     if controller is None:
@@ -84,7 +51,7 @@ def switch_controller(sim, controller, last_command_V=None) -> None:
     sim.controller = controller
     sim.controller_on = True
     if isinstance(controller, DiscreteController):
-        controller.reset(bumpless_state(controller, sim.y_V, u))
+        controller.reset_at(sim.y_V, command_V=u)
     else:
         controller.reset_at(sim.y_V)
 

@@ -95,9 +95,12 @@ class LiveSim:
         self.reset_controller()
 
     def reset_controller(self) -> None:
-        """Zero the controller state (a damping loop starts at equilibrium with the current reading)."""
+        """Start the controller at the current reading and command (no kick, ``reset_at``)."""
         if self.controller is not None:
-            self.controller.reset_at(self.y_V)
+            if isinstance(self.controller, DiscreteController):
+                self.controller.reset_at(self.y_V, command_V=self.u_V)
+            else:
+                self.controller.reset_at(self.y_V)
 
     def _home_reading_V(self) -> np.ndarray:
         d = home_data(self.model)
