@@ -300,8 +300,6 @@ class DiscreteController:
         bumpless start: with integrators that leak its output is whatever holds the reading
         through the measurement path (tens of volts for the LQG designs at the home reading).
         """
-        if self.two_dof:
-            self._check("measurement_V", measurement_V, self._nin - self._ne)
         self.reset(bumpless_state(self.config, measurement_V, command_V))
 
     # --- stepping ----------------------------------------------------------------------

@@ -110,12 +110,12 @@ class BatchController:
         """
         idx = np.arange(self.n) if members is None else np.atleast_1d(np.arange(self.n)[members])
         y = np.asarray(measurement_V, dtype=float)
+        u = None if command_V is None else np.asarray(command_V, dtype=float)
         ns = self.n_states
         for b in idx:
             c = self.configs[b]
             x0 = np.zeros(ns)
-            x0[:c.n_states] = bumpless_state(c, y[b] if c.n_measurement else None,
-                                             None if command_V is None else np.asarray(command_V, float)[b])
+            x0[:c.n_states] = bumpless_state(c, y[b] if c.n_measurement else None, None if u is None else u[b])
             self._xe[b, :ns, 0] = x0
             self._xe[b, ns:, 0] = 0.0
 

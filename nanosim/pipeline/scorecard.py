@@ -26,7 +26,7 @@ from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
 
 __all__ = ["Metric", "METRICS", "ACCEPTANCE", "DEFAULT_RULE", "flatten_metrics", "robustness_metrics", "scorecard",
-           "choose_default", "write_scorecard", "markdown_table", "run_acceptance", "format_value"]
+           "choose_default", "write_scorecard", "markdown_table", "run_acceptance", "format_value", "worst_of"]
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,13 @@ class Metric:
         if self.higher_is_better:
             return value > self.target if self.strict else value >= self.target
         return value < self.target if self.strict else value <= self.target
+
+    def worst(self, values) -> float | None:
+        """The worst of ``values`` (the lowest if higher is better); None entries are skipped, None if none is left."""
+        v = [float(x) for x in values if x is not None]
+        if not v:
+            return None
+        return min(v) if self.higher_is_better else max(v)
 
     @property
     def criterion(self) -> str:
@@ -191,6 +198,11 @@ def run_acceptance(metrics_doc: dict | None, robustness_doc: dict | None) -> lis
     return out
 
 
+def worst_of(key: str, values) -> float | None:
+    """The worst of ``values`` for the scorecard metric ``key`` (:meth:`Metric.worst`)."""
+    return _BY_KEY[key].worst(values)
+
+
 def format_value(v, unit: str = "", with_unit: bool = False) -> str:
     """A scorecard number as text: ``n/a``, ``inf`` (``not settled`` for a time in ms), else 3 significant digits;
     ``with_unit`` appends ``unit`` to a number.
@@ -207,9 +219,8 @@ def _stats(values: list, metric: Metric) -> dict:
     with np.errstate(invalid="ignore"):
         mean = float(a.mean())
         std = float(a.std()) if len(a) > 1 else 0.0
-    worst = float(a.min() if metric.higher_is_better else a.max())
     return {"mean": _num(mean), "std": _num(std) if math.isfinite(std) else None, "min": float(a.min()),
-            "max": float(a.max()), "worst": worst, "n": len(v)}
+            "max": float(a.max()), "worst": metric.worst(v), "n": len(v)}
 
 
 def scorecard(specs, per_seed: dict, robustness: dict, config, *, model_path=None, So_bandwidths=None) -> dict:

@@ -237,13 +237,13 @@ def _summary(seeds, per_seed, timings) -> dict:
 
 def _acceptance_summary(seeds, per_seed) -> dict:
     """Per criterion: the value and verdict on every seed, the worst value and whether every seed passes."""
+    from nanosim.pipeline.scorecard import worst_of
     first = per_seed[seeds[0]].get("acceptance") or {}
     rows = []
     for i, c in enumerate(first.get("criteria", [])):
         cells = [per_seed[s]["acceptance"]["criteria"][i] for s in seeds]
         vals = [x["value"] for x in cells]
-        known = [v for v in vals if v is not None]
-        worst = (min(known) if c["higher_is_better"] else max(known)) if known else None
+        worst = worst_of(c["key"], vals)
         verdicts = [x["pass"] for x in cells]
         rows.append({"key": c["key"], "label": c["label"], "unit": c["unit"], "criterion": c["criterion"],
                      "per_seed": vals, "worst": worst,
