@@ -22,6 +22,7 @@ from .d2c import ContinuousModel, d2c, d2c_tustin, d2c_zoh
 from .fit import fit_percent
 from .freq import H1Estimate, frequency_response, h1_estimate
 from .modal import Modes, continuous_poles, modes_from_model
+from .residual import ResidualSpectrum, input_referred_residual
 from .signals import Excitation, Spectrum, paper_excitation, prbs, prbs_hold_samples, signal_spectrum
 from .shared_poles import LIGHT_DAMPING, SharedPoles, refine_shared_poles, shared_pole_groups
 from .simulation import estimate_x0, predict, simulate
@@ -49,6 +50,8 @@ __all__ = [
     "h1_estimate",
     "H1Estimate",
     "frequency_response",
+    "input_referred_residual",
+    "ResidualSpectrum",
     "modes_from_model",
     "continuous_poles",
     "Modes",

@@ -25,7 +25,11 @@ from nanosim.pipeline.config import IdentifyConfig
 from nanosim.plots.identify import (figure_bode_grid, figure_parametric_vs_h1, figure_singular_values,
                                     figure_time_fit)
 
-__all__ = ["save_model", "identify_json", "run_identify"]
+__all__ = ["save_model", "identify_json", "residual_bands", "run_identify", "RESIDUAL_BANDS_HZ"]
+
+# where the input-disturbance model of a design (the LQG's hysteresis/creep state) can be checked: below the
+# first resonance (~175 Hz), where the model's gain is large and the gauge noise referred to the input small
+RESIDUAL_BANDS_HZ = ((0.5, 2.0), (2.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 50.0), (50.0, 100.0))
 
 AXES, ACTS = C.AXES, C.ACTUATORS
 
@@ -54,7 +58,9 @@ def identify_json(result: IdentifiedStage, extra: dict | None = None) -> dict:
                      "excitation": "step + PRBS 50/100/200 Hz, 1 s each, 4 kHz, one actuator at a time",
                      "validation": "separate record with another PRBS seed"},
         "dc_gain_sensor_V_per_V": np.real(ct.dcgain(result.sysc)).round(5).tolist(),
-        "units": {"fit_percent": "%", "modes_hz": "Hz", "dc_gain_sensor_V_per_V": "sensor V per controller V"},
+        "units": {"fit_percent": "%", "modes_hz": "Hz", "dc_gain_sensor_V_per_V": "sensor V per controller V",
+                  "input_referred_residual": "controller V / sqrt(Hz)"},
+        "input_referred_residual": residual_bands(result),
     }
     if result.shared is not None:
         sh = result.shared
@@ -71,6 +77,19 @@ def identify_json(result: IdentifiedStage, extra: dict | None = None) -> dict:
     if extra:
         out.update(extra)
     return out
+
+
+def residual_bands(result: IdentifiedStage) -> dict:
+    """The validation records' residual, referred to each column's actuator input
+    (:func:`identification.input_referred_residual`), as the ASD [controller V / sqrt(Hz)] in
+    :data:`RESIDUAL_BANDS_HZ`: what the linear model leaves to a disturbance model (hysteresis, creep, noise).
+    """
+    rows = []
+    for col, (u, y) in zip(result.columns, result.validation):
+        r = ident.input_referred_residual(col, u, y, fs=C.CONTROL_RATE_HZ, nperseg=int(C.CONTROL_RATE_HZ))
+        rows.append([float(f"{r.band_asd(lo, hi):.4g}") for lo, hi in RESIDUAL_BANDS_HZ])
+    return {"bands_hz": [list(b) for b in RESIDUAL_BANDS_HZ], "columns": list(ACTS), "asd_V_per_rthz": rows,
+            "record": "validation, one actuator at a time, least squares over the three outputs"}
 
 
 def run_identify(out_dir, config: IdentifyConfig | None = None, *, model=None, twin=None,
