@@ -95,16 +95,19 @@ def test_pipeline_end_to_end(tmp_path):
     assert 12.0 <= m["hysteresis"]["open_loop_percent"] <= 18.0          # paper 15 %
     assert_allclose(m["resolution_sigma_nm"]["open_loop"], 11.4, rtol=0.2)
     assert m["creep"]["closed_loop_drift_nm"] < 5.0 < 50.0 < m["creep"]["open_loop_drift_nm"]
-    # Closed-loop figures are predictions of the geometry-built stage v2 (issue 12); the report sets them
-    # against the paper. Here only what any working loop must show (the #6 bands of 28 Hz / 3 nm / 100 nm
-    # were met by the calibrated v1 stage; v2 predicts about 27 Hz, 3.9 nm, 115 nm on seed 0-1).
+    # Closed-loop figures are predictions of the geometry-built stage v2 with the exported default (the robust
+    # LQG, issue 13); nothing closed-loop was fitted. Where the prediction meets the paper's figure, the paper's
+    # figure is the bound (nanosim.paper.PAPER); where it does not, the prediction is pinned with its spread
+    # over seeds 0-4 and the paper's band stated.
     assert m["hysteresis"]["closed_loop_nm"] < 50.0                      # < 0.25 % of 20 um
-    assert m["resolution_sigma_nm"]["closed_loop"] < 0.5 * m["resolution_sigma_nm"]["open_loop"]
+    assert m["resolution_sigma_table_nm"]["closed_loop"] <= P.PAPER["sig_c"]    # 1.76-1.84 nm on seeds 0-4
     assert_allclose(m["small_steps"]["plateau_means_nm"], m["small_steps"]["targets_nm"], atol=3.0)
-    assert 20.0 <= m["bandwidth_S_hz"] <= 60.0                            # paper 32 Hz
-    assert m["step_2um"]["overshoot_percent"] <= 15.0 and m["step_2um"]["settling_ms"] <= 40.0
+    assert m["bandwidth_S_hz"] >= P.PAPER["bwS"]                            # 43.2-45.2 Hz on seeds 0-4
+    assert m["step_2um"]["overshoot_percent"] <= 10.0                     # issue 13; 0.24-0.33 % on seeds 0-4
+    # settling: 14.75-15.25 ms on seeds 0-4, not the paper's 11 ms (README, "Controller"); the paper band 20 ms
+    assert 13.0 <= m["step_2um"]["settling_ms"] <= 17.0
     fast = [c for c in m["contouring"] if c["speed_um_s"] == 1000.0][0]
-    assert fast["mean_error_nm"] < 250.0          # paper 40 nm; v1 98 nm, v2 ~115 nm
+    assert fast["mean_error_nm"] <= P.PAPER["contour_mean"]               # 30.6-31.1 nm on seeds 0-4
     report = (run_dir / "report.md").read_text()
     assert "Paper vs simulation" in report and "![" in report and "linear twin" in report
     shared = Path(__file__).resolve().parents[2] / "shared" / "tools" / "compare_to_paper.py"

@@ -20,27 +20,29 @@ def test_ideal_stage_fits_at_least_99_percent(ideal_result):
 
 
 def test_ideal_stage_modes_match_modal_analysis(ideal_result):
+    """Noise-free records of the ideal stage: every mode the probes see (sensor participation >= 0.01) is
+    identified in every column (one pole per mode, shared) within 1e-4 of the MuJoCo modal analysis's frequency
+    and 2 % of its damping ratio (seed 0, measured: 1.3e-5 and 0.1 %). On the geometry-built stage v2 the 740 Hz
+    Z mode has a sensor participation of about 0.001 and is the only one below 0.01 (paper: identified)."""
     truth = modal_analysis(load_model()).below(1000.0)
+    unseen = [mode.freq_hz for mode in truth if max(mode.sensor_participation) < 0.01]
+    assert len(unseen) == 1 and abs(unseen[0] - 740.0) < 10.0, unseen
     for col in ideal_result.columns:
         m = ident.modes_from_model(col.A, col.dt_s)
         for mode in truth:
+            if max(mode.sensor_participation) < 0.01:
+                continue
             i = int(np.argmin(np.abs(m.freq_hz - mode.freq_hz)))
-            if abs(m.freq_hz[i] - mode.freq_hz) > 0.01 * mode.freq_hz:
-                continue                     # a mode this column does not see (zero residue)
-            assert_allclose(m.damping[i], mode.damping_ratio, rtol=0.3)
-    seen = {round(f) for col in ideal_result.columns for f in ident.modes_from_model(col.A, col.dt_s).freq_hz}
-    # every mode the probes see is identified somewhere within 1 %; on the geometry-built stage v2 the
-    # 740 Hz Z mode has a sensor participation of about 0.001 (paper: identified), reported in the note
-    for mode in truth:
-        if max(mode.sensor_participation) < 0.01:
-            continue
-        assert any(abs(f - mode.freq_hz) <= 0.01 * mode.freq_hz for f in seen), mode.freq_hz
+            assert m.freq_hz[i] == pytest.approx(mode.freq_hz, rel=1e-4), (mode.freq_hz, m.freq_hz)
+            assert m.damping[i] == pytest.approx(mode.damping_ratio, rel=0.02), (mode.freq_hz, m.damping[i])
 
 
 def test_ideal_stage_dc_gain_matches_static_gain(ideal_result):
+    """DC gain of the identified model vs MuJoCo's static gain: within 0.6 % of the largest entry (seed 0,
+    measured 0.33 %; the records hold 4 s of data, so the lowest frequencies are fitted, not measured)."""
     truth = modal_analysis(load_model()).static_gain_um_per_V / 5.0          # sensor V per controller V
     dc = np.real(np.asarray(ideal_result.sysd.dcgain()))
-    assert_allclose(dc, truth, atol=0.02 * np.abs(truth).max())
+    assert_allclose(dc, truth, atol=0.006 * np.abs(truth).max())
 
 
 def test_assembled_model_is_block_diagonal_of_columns(ideal_result):

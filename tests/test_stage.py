@@ -91,21 +91,35 @@ def test_creep_after_step_and_all_actuators_creep_mostly_in_z():
     tr_a, tr_all = run_open_loop_batch(cmd, seeds=[0, 0], config=cfg)
     after = slice(n_ramp + 200, n_ramp + 600)                            # 50-150 ms after the move
     end = slice(-400, None)                                              # last 0.1 s
+    # the creep law's own prediction: its step response superposed over the ramp's increments (the hold is
+    # static for the mechanics and the hysteresis, so only creep moves the table after the ramp)
+    t = np.arange(len(prof)) / C.CONTROL_RATE_HZ
+    law = PiezoConfig()
+    creep = sum(dh * np.where(t >= tk, law.creep_step_response(t - tk), 0.0)
+                for dh, tk in zip(np.diff(prof[:n_ramp + 1], prepend=0.0), t[:n_ramp + 1]) if dh)
+    expected = creep[end].mean() / creep[after].mean() - 1.0                # 0.036
     for tr in (tr_a, tr_all):
         move = tr.table_um[after].mean(0) - tr.table_um[0]
         drift = tr.table_um[end].mean(0) - tr.table_um[after].mean(0)
-        # the fast 35 ms creep stage is done by then; the 1 s and 10 s stages drift on
-        assert 0.005 < np.linalg.norm(drift) / np.linalg.norm(move) < 0.1
-        assert np.all(np.sign(drift) == np.sign(move))                   # creep continues the move
+        # every axis drifts by the same fraction of its move, in the move's direction (measured: within 0.3 %)
+        assert_allclose(drift / move, expected, rtol=0.02)
     drift_all = tr_all.table_um[end].mean(0) - tr_all.table_um[after].mean(0)
     assert abs(drift_all[2]) > 5 * max(abs(drift_all[0]), abs(drift_all[1]))
 
 
 def test_open_loop_noise_at_rest_matches_paper():
-    """The one fitted noise level (DAC): rms over seeds 0-4 and X, Y of 4 s at rest is the paper's 11.4 nm."""
-    var = [(Stage(seed=s).run(np.zeros((18000, 3))).sensor_um[2000:, :2] * 1e3).var(axis=0) for s in range(5)]
-    assert_allclose(np.sqrt(np.mean(var)), PAPER_SIGMA_OPEN_NM, rtol=0.01)   # fit rounded to 3 digits
-    assert np.sqrt(np.min(var)) > 0.8 * PAPER_SIGMA_OPEN_NM and np.sqrt(np.max(var)) < 1.2 * PAPER_SIGMA_OPEN_NM
+    """The one fitted noise level (DAC): the calibration reproduces (rms over seeds 0-4 and X, Y of 4 s at rest is
+    the paper's 11.4 nm, as tools/fit_dac_noise.py solved for), and held-out seeds predict it.
+
+    Held out: seeds 5-14 (20 probe records). One record's sigma scatters by 1.55 nm (seeds 10-39), because the
+    176/178 Hz pair (zeta 0.003, half-power band ~1 Hz) holds most of the variance and a 4 s record sees only a
+    few of its cycles of independent amplitude; the rms over 20 records is then within 3 standard errors,
+    3 x 1.55 / sqrt(20) = 1.04 nm = 9 %, of the expectation (measured: 11.44 nm).
+    """
+    traces = run_open_loop_batch(np.zeros((15, 18000, 3)), seeds=list(range(15)))
+    var = np.array([(tr.sensor_um[2000:, :2] * 1e3).var(axis=0) for tr in traces])
+    assert_allclose(np.sqrt(np.mean(var[:5])), PAPER_SIGMA_OPEN_NM, rtol=0.01)   # fit rounded to 3 digits
+    assert_allclose(np.sqrt(np.mean(var[5:])), PAPER_SIGMA_OPEN_NM, rtol=0.09)
 
 
 def test_adc_ramp_shows_1p5nm_steps():
