@@ -216,6 +216,7 @@ def test_bumpless_switch_keeps_the_command(designs, model):
 def test_viewer_switches_bench_controllers_live_without_a_kick(designs, model):
     """LiveSim (linearized MuJoCo, ideal electronics) holding X at 1 um under one controller, then switched:
     the command moves by far less than with a plain restart of the new controller."""
+    from nanosim import constants as C
     from nanosim.viewer.bench import switch_controller
     from nanosim.viewer.sim import LiveSim
     sim = LiveSim(controller=designs["pi-notch"].controller(), physics="linear")
@@ -228,14 +229,25 @@ def test_viewer_switches_bench_controllers_live_without_a_kick(designs, model):
         s2 = LiveSim(controller=designs["pi-notch"].controller(), physics="linear")
         for _ in range(1200):
             s2.step(ref)
+        np.testing.assert_allclose(s2.u_V, u_before, rtol=0, atol=1e-12)    # deterministic replay
         new = designs["robust"].controller()
+        assert not new.two_dof      # reset_at(y) without a command is then the zero state: a plain restart
         if how == "bumpless":
             switch_controller(s2, new)
         else:
             s2.controller = new
             new.reset_at(s2.y_V)
-        y = [s2.step(ref)[0] for _ in range(200)]
-        jumps[how] = (np.abs(s2.u_V - u_before).max(), np.abs(np.array(y) - 1.0).max())
+        e_switch = ref / C.SENSOR_UM_PER_V + s2.y_home_V - s2.y_V          # error seen on the first step
+        y = [s2.step(ref)[0]]
+        u_first = s2.u_V.copy()                                             # first command after the switch
+        y += [s2.step(ref)[0] for _ in range(199)]
+        jumps[how] = (np.abs(u_first - u_before).max(), np.abs(np.array(y) - 1.0).max())
+        if how == "bumpless":
+            # bumpless_state: first output = held command + Dkd e (Ckd x carries the command exactly)
+            c = new.config
+            np.testing.assert_allclose(u_first, u_before + c.Dkd[:, :c.n_error] @ e_switch, rtol=0, atol=1e-12)
+    print({k: (f"{v[0]:.3g} V", f"{v[1]:.3g} um") for k, v in jumps.items()})
+    assert jumps["bumpless"][0] < 0.2 * jumps["reset_at"][0]    # command jump at the switch
     assert jumps["bumpless"][1] < 0.05                       # stays within 50 nm of 1 um
     assert jumps["bumpless"][1] < 0.2 * jumps["reset_at"][1]
 

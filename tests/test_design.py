@@ -301,9 +301,12 @@ def test_multiplicative_uncertainty_known():
 
 def test_uncertainty_paper_like(paper_case):
     G, red, _ = paper_case
-    f = np.array([1.0, 10.0, 50.0, 100.0])
-    eo = D.multiplicative_uncertainty(G, red.G_reduced, f)
-    assert np.all(eo < 0.2)      # low-frequency reduction error small (paper: < -20 dB below 140 Hz)
+    # Paper Sec. 4 / Fig. 10(b): sigma_max(E_o), E_o = (G_P - G) G^-1, is "less than -20 dB below
+    # 140 Hz" (paper_targets.json reduction.Eo_max_sv_dB_below_140Hz = -20). Dense grid, 1-140 Hz.
+    # (this synthetic plant reaches -20.8 dB near 29 Hz)
+    f = np.geomspace(1.0, 140.0, 500)
+    eo_db = 20 * np.log10(D.multiplicative_uncertainty(G, red.G_reduced, f))
+    assert eo_db.max() < -20.0, (eo_db.max(), f[np.argmax(eo_db)])
 
 
 # --------------------------------------------------------------------------------------

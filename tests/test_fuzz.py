@@ -116,28 +116,32 @@ def _signal(n):
 def test_discrete_controller_construct_step_reset(kw, data, steps):
     from nanosim.design.controller import DiscreteController
 
-    with documented_only():
+    k = None
+    with documented_only():                 # only the call under fuzz may raise the documented errors
         k = DiscreteController.from_matrices(**kw)
-        event("constructed")
-        ne, nm, nx = k.config.n_error, k.config.n_measurement, k.config.n_states
+    if k is None:
+        return
+    event("constructed")
+    ne, nm, nx = k.config.n_error, k.config.n_measurement, k.config.n_states
+    with documented_only():
+        k.reset(data.draw(_signal(nx)))
+    with documented_only():
+        k.reset(measurement_V=data.draw(_signal(nm)))
+    for _ in range(steps):
         with documented_only():
-            k.reset(data.draw(_signal(nx)))
-        with documented_only():
-            k.reset(measurement_V=data.draw(_signal(nm)))
-        for _ in range(steps):
-            with documented_only():
-                out = k.step(data.draw(_signal(ne)), data.draw(_signal(nm)) if nm else None)
-                assert out.shape == (k.config.n_out,) and np.all(np.isfinite(out))
-        with documented_only():
-            out = k.feedback(data.draw(_signal(ne)), data.draw(_signal(ne)))
-            assert out.shape == (k.config.n_out,)
-        good_e = np.linspace(-1, 1, ne)
-        k.reset()
-        out = k.step(good_e, np.zeros(nm) if nm else None)
-        assert out.shape == (k.config.n_out,) and np.all(np.isfinite(out))
-        seq = k.run(np.tile(good_e, (4, 1)), measurement_seq=np.zeros((4, nm)) if nm else None)
-        assert seq.shape == (4, k.config.n_out)
-        event("ran")
+            out = k.step(data.draw(_signal(ne)), data.draw(_signal(nm)) if nm else None)
+            assert out.shape == (k.config.n_out,) and np.all(np.isfinite(out))
+    with documented_only():
+        out = k.feedback(data.draw(_signal(ne)), data.draw(_signal(ne)))
+        assert out.shape == (k.config.n_out,)
+    # valid path on a constructed controller: no exception of any kind is allowed here
+    good_e = np.linspace(-1, 1, ne)
+    k.reset()
+    out = k.step(good_e, np.zeros(nm) if nm else None)
+    assert out.shape == (k.config.n_out,) and np.all(np.isfinite(out))
+    seq = k.run(np.tile(good_e, (4, 1)), measurement_seq=np.zeros((4, nm)) if nm else None)
+    assert seq.shape == (4, k.config.n_out)
+    event("ran")
 
 
 # --- identification ------------------------------------------------------------------------------------
@@ -216,14 +220,18 @@ def subspace_args(draw):
 def test_subspace_id_on_tiny_data(kw):
     import identification as ident
 
-    with documented_only():
+    m = None
+    with documented_only():                 # only the call under fuzz may raise the documented errors
         m = ident.subspace_id(**kw)
-        event("ok")
-        assert m.A.shape == (m.order, m.order) and np.all(np.isfinite(m.A))
-        yhat = ident.simulate(m, kw["u"], m.x0)
-        assert yhat.shape == np.shape(kw["y"])
-        cont = ident.d2c(m)
-        assert cont.nstates == m.order
+    if m is None:
+        return
+    event("ok")
+    # a model subspace_id returned must simulate and convert: no exception of any kind is allowed here
+    assert m.A.shape == (m.order, m.order) and np.all(np.isfinite(m.A))
+    yhat = ident.simulate(m, kw["u"], m.x0)
+    assert yhat.shape == np.shape(kw["y"])
+    cont = ident.d2c(m)
+    assert cont.nstates == m.order
 
 
 @st.composite
@@ -292,11 +300,14 @@ def weight_dicts(draw):
 def test_weights_from_dict(data):
     from nanosim.design.weights import Weights
 
-    with documented_only():
+    w = None
+    with documented_only():                 # only the call under fuzz may raise the documented errors
         w = Weights.from_dict(data)
-        assert Weights.from_dict(w.to_dict()) == w           # round trip
-        with documented_only():
-            w.check()
+    if w is None:
+        return
+    assert Weights.from_dict(w.to_dict()) == w               # round trip of accepted weights: must not raise
+    with documented_only():
+        w.check()
 
 
 def _toml_value(v):

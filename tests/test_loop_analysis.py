@@ -276,14 +276,43 @@ def test_mu_limits_full_block_and_diagonal_matrix():
 
 
 def test_mu_lower_bound_is_achieved_by_a_structured_perturbation():
-    # mu >= lower means a Delta with sigma_max(Delta_i) = 1/lower makes I - M Delta singular;
-    # check it through the definition with the optimal scaled problem: det(I - M Delta)
-    # vanishes for Delta = delta / lower when the bounds coincide (complex scalar blocks).
+    # Definition of mu (Packard & Doyle 1993, Automatica 29(1); Skogestad & Postlethwaite sec. 8.8):
+    # 1/mu = smallest sigma_max(Delta), Delta structured, with det(I - M Delta) = 0. A lower bound
+    # that is attained means a structured Delta with sigma_max(Delta_i) = 1/lower makes I - M Delta
+    # singular; det(I) = 1 sets the scale of the determinant.
+    #
+    # (a) rank one, M = a b^H: det(I - M Delta) = 1 - sum_i b_i^H Delta_i a_i, so mu = sum_i |a_i| |b_i|
+    # (block norms) and Delta_i = b_i a_i^H / (|a_i| |b_i| mu) is destabilising (exact; for complex
+    # scalars Delta_i = exp(-j arg(a_i conj(b_i))) / mu).
     rng = np.random.default_rng(5)
+    for blocks in ([(1, 1)] * 3, [(1, 1), (2, 2), (1, 1)], [(1, 2), (3, 2)]):
+        n, m = sum(c for _, c in blocks), sum(r for r, _ in blocks)
+        a = rng.standard_normal(n) + 1j * rng.standard_normal(n)
+        bv = rng.standard_normal(m) + 1j * rng.standard_normal(m)
+        zc, wr = np.cumsum([0] + [c for _, c in blocks]), np.cumsum([0] + [r for r, _ in blocks])
+        parts = [(a[zc[i]:zc[i + 1]], bv[wr[i]:wr[i + 1]]) for i in range(len(blocks))]
+        mu = sum(np.linalg.norm(ai) * np.linalg.norm(bi) for ai, bi in parts)
+        b = la.mu_upper_bound(np.outer(a, bv.conj()), blocks)
+        assert b.upper[0] == pytest.approx(mu, rel=1e-9), blocks
+        assert b.lower[0] == pytest.approx(mu, rel=1e-9), blocks
+        Delta = np.zeros((m, n), complex)
+        for i, (ai, bi) in enumerate(parts):
+            Delta[wr[i]:wr[i + 1], zc[i]:zc[i + 1]] = np.outer(bi, ai.conj()) / (
+                np.linalg.norm(ai) * np.linalg.norm(bi) * b.lower[0])
+        assert abs(np.linalg.det(np.eye(n) - np.outer(a, bv.conj()) @ Delta)) < 1e-8, blocks
+    # (b) general M, three complex scalars (2S + F <= 3: the D-scaling bound equals mu). At the
+    # returned optimal scales d with a simple sigma_max(D M D^-1) = sigma u v^H + ..., |u_i| = |v_i|
+    # and Delta = diag(v_i / u_i) / mu gives M Delta (D^-1 u) = D^-1 u: I - M Delta is singular.
     M = rng.standard_normal((3, 3)) + 1j * rng.standard_normal((3, 3))
     b = la.mu_upper_bound(M, [(1, 1)] * 3)
-    lam, V = np.linalg.eig(M)
-    assert b.lower[0] >= np.max(np.abs(lam)) - 1e-12
+    assert b.lower[0] == pytest.approx(b.upper[0], rel=1e-9)
+    d = b.d_scales[0]
+    U, sv, Vh = np.linalg.svd(d[:, None] * M / d[None, :])
+    assert sv[1] < 0.9 * sv[0]                                   # simple sigma_max
+    ratio = Vh[0].conj() / U[:, 0]
+    Delta = np.diag(ratio / np.abs(ratio)) / b.lower[0]          # sigma_max(Delta_i) = 1 / lower
+    assert abs(np.linalg.det(np.eye(3) - M @ Delta)) < 1e-8
+    assert b.lower[0] >= np.max(np.abs(np.linalg.eigvals(M))) - 1e-12
     # scaling M by 2 scales mu by 2 (homogeneity)
     b2 = la.mu_upper_bound(2 * M, [(1, 1)] * 3)
     assert b2.upper[0] == pytest.approx(2 * b.upper[0], rel=1e-6)
