@@ -47,14 +47,17 @@ CREEP_TAU_MIN_S = 1e-3
 CREEP_TAU_MAX_S = 100.0
 CREEP_STAGES_PER_DECADE = 2
 
-# --- the bench loop (nanosim.plant.electronics; notes/stage_v2_sources.md items 4-6) -------
+# --- the bench loop (nanosim.plant.electronics; mjcf/SOURCES.md items 4-6) -------
 # Computation delay between the controller's output and the DAC update, whole samples. The UMAC
 # reads the ADC at the servo interrupt, computes the controller and writes the DAC in the same
 # servo cycle (a fraction of a sample later), so the command acts from within the period it was
-# computed in: 0 whole samples. The issue's bench spec and notes item 6 suggested one full sample;
-# Appendix A's right-half-plane zeros near 2/T do not separate 0 from 1 (the simulated
-# identification shows such zeros either way), and with 1 the default damping-loop design
-# (400 Hz low-pass) destabilizes the loop at ~277 Hz. 1 and 2 are ablation rows.
+# computed in: 0 whole samples (physics of the bench; mjcf/SOURCES.md item 6 estimates the loop
+# delay as 1 sample + 1/2 sample ZOH and recommends 1 whole sample, range 0.5-2: the conservative
+# reading). Appendix A's right-half-plane zeros near 2/T do not separate 0 from 1 (the simulated
+# identification shows such zeros either way). Consequences, not reasons: with 1, the default
+# damping-loop design (400 Hz low-pass) is unstable at ~277 Hz; the exported robust LQG is checked
+# stable, with mixed mu < 1, for 0-1 extra sample (nanosim.design.uncertainty.STAGE_UNCERTAINTY).
+# 1 and 2 are ablation rows.
 COMPUTATION_DELAY_SAMPLES = 0
 # Amplifier small-signal bandwidth into the APA35XS capacitance (first order). PiezoDrive PD200
 # (gain 20): 7.4 kHz small-signal into 10 uF, i.e. R_out ~ 2.2 ohm (Dehaeze, test-bench-pd200);
@@ -71,19 +74,26 @@ AMPLIFIER_NOISE_V = 14.5e-6
 # 11.4 nm, as the mean variance over seeds 0-4 and the X and Y probes (tools/fit_dac_noise.py;
 # tests/test_stage.py), with every other source at its sourced level. Controller V per
 # sample, white part (a datasheet-level 16-18 bit DAC alone gives ~10-50 uV; the fitted level is
-# about 8x that, i.e. interference, reference and ground noise, as the paper suspected).
+# 5-24x that, i.e. interference, reference and ground noise, as the paper suspected). Fitted
+# without bounds; inside mjcf/SOURCES.md item 6's range of 20 uV - 2 mV; held-out seeds 5-14
+# give 11.44 nm (tests/test_stage.py).
 DAC_WHITE_NOISE_V = 2.43e-4
-# 1/f corner of that noise: typical of precision op-amp/reference output stages (1-100 Hz); 10 Hz.
+# 1/f corner of that noise: estimate [E] in [1, 100] Hz, typical of precision op-amp/reference
+# output stages (no datasheet: the paper does not name the DAC); 10 Hz, the geometric middle.
 DAC_FLICKER_CORNER_HZ = 10.0
 # Capacitive gauge (ADE 2805 probe + 4810 module) output filter: not in the paper; gauging
 # modules of that class offer ~100 Hz ... 5 kHz (Queensgate NanoSensor: 50/500/5000 Hz); the
-# paper's "0.3 nm at 1 kHz" is a noise specification. 5 kHz, 2-pole Butterworth (notes item 5).
+# paper's "0.3 nm at 1 kHz" is a noise specification. 5 kHz, 2-pole Butterworth (mjcf/SOURCES.md item 5):
+# estimate [E] in [0.5, 5] kHz, the widest setting (no ADE 4810 datasheet in reach).
 GAUGE_BANDWIDTH_HZ = 5000.0
 GAUGE_FILTER_ORDER = 2
 # Floor vibration: table-top acceleration PSD, (m/s^2)^2/Hz, white to the Nyquist frequency, per
-# axis. A VC-C floor (12.5 um/s in 1/3-octave bands, Gordon/Ungar, IEST-RP-CC012) through a
-# pneumatic optical table with a transmissibility plateau of ~0.01 above tens of Hz (estimate,
-# notes item 9; range 1e-12 ... 1e-9).
+# axis: estimate [E] in [1e-12, 1e-9] (mjcf/SOURCES.md item 9). Its stated basis, a VC-C floor
+# (12.5 um/s in 1/3-octave bands, Gordon/Ungar, IEST-RP-CC012) through a table plateau of 0.01,
+# gives 3e-11 only at ~11 Hz; at the 175-245 Hz modes it gives 4.7e-10-6.5e-10, and 3e-11 there is
+# a transmissibility of ~0.0025 (between an ideal 1.5 Hz isolator's 0.0017 and the plateau). At
+# 4.7e-10 the floor's share of the closed-loop table sigma would be ~0.57 nm instead of 0.14 nm
+# (mjcf/README.md, "Estimates the predictions depend on").
 FLOOR_ACCEL_PSD_M2_S4_HZ = 3e-11
 
 # --- capacitance gauges and ADC (paper Sec. 2-3) -----------------------------

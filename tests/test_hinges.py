@@ -7,7 +7,7 @@ from numpy.testing import assert_allclose
 from nanosim.plant.hinges import (AL_7075_T6, TI_6AL_4V, NotchHinge, bending_stiffness_integral_Nm_per_rad,
                                   notch_stiffness, paros_weisbord_stiffness_Nm_per_rad)
 
-WORKED = NotchHinge(0.3e-3, 1.0e-3, 6.0e-3)     # t = 0.3 mm, R = 1 mm, b = 6 mm (notes/stage_v2_sources.md item 7)
+WORKED = NotchHinge(0.3e-3, 1.0e-3, 6.0e-3)     # t = 0.3 mm, R = 1 mm, b = 6 mm (mjcf/SOURCES.md item 7)
 
 
 @pytest.mark.parametrize("t_mm, R_mm", [(0.05, 1.0), (0.1, 1.0), (0.3, 1.0), (0.6, 1.0), (0.2, 0.75), (0.4, 2.0)])

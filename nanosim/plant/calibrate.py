@@ -14,11 +14,12 @@ Two fits use the same machinery:
   beyond the 50 mm scale, the APA35XS and the stroke): wide, physically
   sensible ranges, symmetric chains.
 * :data:`CALIBRATION_PARAMS` -- the calibration proper: notch thicknesses
-  within the fine wire-EDM tolerance (+/-5 um, notes/stage_v2_sources.md
-  item 8) of nominal, one chain's notches off by up to that tolerance (the
-  fabrication asymmetry that splits the XY pairs), the cut radius within the
-  same tolerance, link widths within +/-0.1 mm and the target mass within
-  +/-10 %.
+  within the standard wire-EDM tolerance (:data:`EDM_TOLERANCE_M`, +/-10 um,
+  mjcf/SOURCES.md item 8) of nominal, chains a and b's notches off the
+  calibrated family value by up to that tolerance again (the fabrication
+  asymmetry that splits the XY pairs; the two bounds add, a known defect
+  stated in mjcf/README.md), the cut radius within the same tolerance, link
+  widths within +/-0.1 mm and the target mass within +/-10 %.
 
 Every fit reports its residuals and which bounds are active
 (:class:`FitResult`).
@@ -43,7 +44,7 @@ __all__ = ["FitParam", "ModeSummary", "FitResult", "DampingFit", "DESIGN_PARAMS"
            "EDM_TOLERANCE_M", "summarize", "residuals", "fit", "fit_damping", "calibration_params", "get_param",
            "set_param", "volts_to_force_N"]
 
-EDM_TOLERANCE_M = 10e-6         # standard wire EDM finish (notes/stage_v2_sources.md item 8, vendor data)
+EDM_TOLERANCE_M = 10e-6         # standard wire EDM finish (mjcf/SOURCES.md item 8, vendor data)
 TARGET_XY_HZ = tuple(f for f, a in zip(PAPER_MODES_HZ, ("XY", "XY", "Z", "XY", "XY", "Z")) if a == "XY")
 TARGET_Z_HZ = tuple(f for f, a in zip(PAPER_MODES_HZ, ("XY", "XY", "Z", "XY", "XY", "Z")) if a == "Z")
 OBSERVABLE = 3e-3               # an XY mode counts as seen by the probes above this share of the static gain

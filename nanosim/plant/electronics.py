@@ -12,7 +12,7 @@ The mechanics applies the tendon force ``F = PIEZO_FORCE_PER_PIEZO_V * v_free``.
 
 Sensor side (per capacitance probe)::
 
-    displacement (um) -> gauge output filter (Butterworth, first-order hold) -> + gauge noise
+    displacement (um) -> gauge output filter (Butterworth, Tustin prewarped at 500 Hz) -> + gauge noise
       -> clip to +/-50 um (flag) -> 5 um/V -> 16-bit ADC over +/-10 V -> reading (sensor V)
 
 Every default is a bench value with its source in :mod:`nanosim.constants`

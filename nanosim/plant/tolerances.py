@@ -6,7 +6,7 @@ Every tolerance is one random variable with a distribution and its source:
 variable (per ...)             nominal          distribution       source
 =============================  ===============  =================  =========================================
 notch thickness t (notch)      the stage's      uniform +/-5 um    fine wire EDM, 4-6 passes: +/-5 um
-                               notch family                        (notes/stage_v2_sources.md item 8:
+                               notch family                        (mjcf/SOURCES.md item 8:
                                                                    Mecvil, xmake, jccnc vendor data) (1)
 notch cut radius R (notch)     the family's R   uniform +/-5 um    the same EDM tolerance on the cut path
 link width (moving link)       1 (relative)     uniform +/-5 um    the same EDM tolerance on the link's
@@ -15,7 +15,7 @@ link width (moving link)       1 (relative)     uniform +/-5 um    the same EDM 
 target mass (stage)            ``table`` body   uniform +/-2 %     assumption [E]: machined target and
                                                                    mount, fasteners/adhesive not toleranced
 piezo gain (actuator)          1                uniform +/-10 %    assumption [E]: no APA35XS datasheet
-                                                                   spread in reach (notes item 1)
+                                                                   spread in reach (mjcf/SOURCES.md item 1)
 =============================  ===============  =================  =========================================
 
 (1) Uniform: a tolerance band is what the vendors state, the maximum-entropy
@@ -68,8 +68,8 @@ __all__ = ["Tolerance", "ToleranceModel", "default_tolerances", "sample_model", 
            "notch_stiffness_ratio", "EDM_TOLERANCE_M", "LINK_BODIES", "V1_NOTCHES"]
 
 CHAINS = ("a", "b", "c")
-EDM_TOLERANCE_M = 5e-6              # fine wire EDM (notes/stage_v2_sources.md item 8)
-_EDM_SOURCE = "fine wire EDM +/-5 um (notes/stage_v2_sources.md item 8: Mecvil, xmake, jccnc vendor data)"
+EDM_TOLERANCE_M = 5e-6              # fine wire EDM (mjcf/SOURCES.md item 8)
+_EDM_SOURCE = "fine wire EDM +/-5 um (mjcf/SOURCES.md item 8: Mecvil, xmake, jccnc vendor data)"
 LINK_BODIES = ("crank", "foot", "leg_base", "rocker_p", "leg_top", "rocker_n", "follower")
 _LINK_WIDTH_M = 2.4e-3
 # v1 (lumped) stage: notch -> (MJCF element kind, element suffix, family)
@@ -223,7 +223,7 @@ def default_tolerances(model: mujoco.MjModel | None = None) -> ToleranceModel:
     for c in CHAINS:
         tols.append(Tolerance(f"piezo_gain.{c}", "piezo gain", 1.0, 0.10, "-",
                               "assumption [E]: +/-10 % unit-to-unit stroke per volt (no APA35XS datasheet "
-                              "spread in reach, notes item 1)"))
+                              "spread in reach, mjcf/SOURCES.md item 1)"))
     return ToleranceModel(tuple(tols), layout)
 
 

@@ -80,7 +80,7 @@ piezo's small-signal gain is above the identified (hysteresis-average) gain.
 
 Not a criterion, reported as ``parameters["spectral_radius_small_signal_gain"]``: the loop at
 :data:`SMALL_SIGNAL_GAIN` x the identified input gain (the twin's small-signal piezo slope is 1.35-1.41 x the
-identified hysteresis-average slope, 1.22 x more after reversals); neither rule's loop is stable there, and
+identified hysteresis-average slope, 1.24 x more after reversals); neither rule's loop is stable there, and
 both run on MuJoCo without ringing.
 
 The delay: ``nanosim identify`` pairs each command with the reading the controller had when it
@@ -136,8 +136,8 @@ DISTURBANCE_CORNER_HZ = 1.0
 DESIGN_FREQ_SCALE = 1.03
 SHIFT_ABOVE_HZ = 300.0
 # the identified gain is the hysteresis-average (large-signal) slope, ~0.75 of the piezo's small-signal slope, which
-# reaches 1.22 of nominal after reversals: 1.22 / 0.75 = 1.63; the linear twin with the bench electronics has
-# 1.35-1.41 x the identified gain, x 1.22 = 1.72. Reported (parameters["spectral_radius_small_signal_gain"]), not a
+# reaches 1.24 of nominal after reversals: 1.24 / 0.75 = 1.65; the linear twin with the bench electronics has
+# 1.35-1.41 x the identified gain, x 1.24 = 1.67-1.75. Reported (parameters["spectral_radius_small_signal_gain"]), not a
 # criterion: the nominal rule's loop, which runs on MuJoCo without ringing, is not stable there either.
 SMALL_SIGNAL_GAIN = 1.75
 TUNING_RULE = ("LQG on the identified model (the loop as run): Kalman filter from the stage's DAC (input) "
