@@ -67,17 +67,123 @@ def _file(text: str) -> str:
     return text
 
 
+def _named(name: str, exc: BaseException) -> str:
+    """One line naming the argument: ``"mjcf: x is not ..."`` -> ``"--mjcf: x is not ..."``."""
+    msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
+        msg = f"{msg}: {exc.filename}"
+    for prefix in (f"{name}: ", f"{name.lstrip('-')}: "):
+        if msg.startswith(prefix):
+            msg = msg[len(prefix):]
+    return f"{name}: {msg}"
+
+
+def _type_error(name: str, exc: BaseException) -> argparse.ArgumentTypeError:
+    """An argparse type's error (argparse puts ``argument NAME:`` in front)."""
+    return argparse.ArgumentTypeError(_named(name, exc)[len(name) + 2:])
+
+
+def _out_folder(name: str):
+    """``--out``/``--plot``: a folder that can be created or written, checked before any work."""
+    def parse(text: str) -> str:
+        from nanosim.pipeline.runfolder import RunFolderError, check_writable
+        try:
+            check_writable(text, name)
+        except RunFolderError as exc:
+            raise _type_error(name, exc) from None
+        return text
+    return parse
+
+
+def _scheduler(text: str) -> str:
+    """``--scheduler``: ``local`` or ``tcp://HOST:PORT`` (its form; whether it answers is known by connecting)."""
+    from nanosim.pipeline.scaleout import check_scheduler
+    try:
+        return check_scheduler(text)
+    except ValueError as exc:
+        raise _type_error("--scheduler", exc) from None
+
+
+def _seeds(sort: bool):
+    """``--seeds``: ``0-4``, ``0,3,7`` or a mix, at most ``seeds.MAX_SEEDS`` distinct seeds."""
+    def parse(text: str) -> tuple:
+        from nanosim.pipeline.seeds import parse_seeds
+        try:
+            return parse_seeds(text, sort=sort)
+        except ValueError as exc:
+            raise _type_error("--seeds", exc) from None
+    return parse
+
+
+# --- checks of file contents, before any work: the message names the argument ----------------
+def _load_mjcf(path):
+    """The MJCF model (``None``: the bundled stage); errors name ``--mjcf``."""
+    from nanosim.plant.mjcf import load_model
+    try:
+        return load_model(path)
+    except (OSError, ValueError) as exc:
+        raise ValueError(_named("--mjcf", exc)) from None
+
+
+def _check_mjcf(args) -> None:
+    if getattr(args, "mjcf", None) is not None:
+        _load_mjcf(args.mjcf)
+
+
+def _check_controller(path) -> Path:
+    """``--controller``: matches its sealed run folder (if any), a controller .npz at the loop's period."""
+    from nanosim.design.controller import DiscreteController
+    from nanosim.pipeline.runfolder import verify_input_file
+
+    p = verify_input_file(path, "--controller").resolve()       # a sealed run's controller must match it
+    try:
+        DiscreteController.from_npz(p, expected_dt=C.CONTROL_PERIOD_S)
+    except (OSError, ValueError) as exc:
+        raise ValueError(_named("--controller", exc)) from None
+    return p
+
+
+def _check_model(path) -> Path:
+    """``--model``: a model.npz (or a run folder holding one) matching its sealed run folder (if any)."""
+    from nanosim.design.lti import load_state_space_npz
+    from nanosim.pipeline.runfolder import verify_input_file
+
+    p = Path(path)
+    if p.is_dir():
+        p = p / A.MODEL_NPZ
+    if not p.is_file():
+        raise ValueError(f"--model: expected a model.npz or a run folder holding one, got {str(path)!r}"
+                         + (" (no model.npz in it)" if Path(path).is_dir() else ""))
+    p = verify_input_file(p, "--model").resolve()                 # a sealed run's model must match it
+    try:
+        load_state_space_npz(p)
+    except (OSError, ValueError) as exc:
+        raise ValueError(_named("--model", exc)) from None
+    return p
+
+
+def _check_weights(path):
+    """``--weights``: a JSON/TOML file of usable weights (design, pipeline and sweep share this check)."""
+    if path is None:
+        return None
+    from nanosim.design.weights import Weights
+    try:
+        Weights.coerce(path).check()
+    except (OSError, ValueError) as exc:
+        msg = _named("--weights", exc)[len("--weights: "):]
+        where = "" if str(path) in msg else f"{str(path)!r}: "           # name the file that arrived
+        raise ValueError(f"--weights: {where}{msg}") from None
+    return path
+
+
 # --- commands ------------------------------------------------------------------------------
 def _cmd_modes(args) -> int:
     from nanosim.fileio import save_figure
-    from nanosim.pipeline.runfolder import check_writable
     from nanosim.plant.mjcf import FULL_MJCF, load_model
     from nanosim.plant.modes import modal_analysis, modes_json
     from nanosim.plots.modes import mode_shape_figures
 
-    if args.plot:
-        check_writable(args.plot, "--plot")
-    model = load_model(args.mjcf)
+    model = _load_mjcf(args.mjcf)                  # --plot was checked by its type, before any work
     if args.plot:
         for name, fig in mode_shape_figures(model, modal_analysis(model), fmax_hz=args.fmax):
             print(save_figure(fig, Path(args.plot) / name))
@@ -100,6 +206,7 @@ def _cmd_modes(args) -> int:
 
 
 def _design_config(args) -> DesignConfig:
+    _check_weights(args.weights)
     if args.paper_design:
         return DesignConfig.paper(weights=args.weights)
     return DesignConfig(reduced_order=args.reduced_order, damping_zeta=args.damping_zeta, weights=args.weights,
@@ -115,6 +222,7 @@ def _cmd_identify(args) -> int:
     from nanosim.pipeline.runfolder import staged_run
 
     cfg = IdentifyConfig(seed=args.seed, order=args.order, ideal=args.ideal, shared_poles=args.shared_poles)
+    _check_mjcf(args)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
         _say("simulating the identification experiments (3 actuators x 2 records, 2 operating points)")
@@ -127,10 +235,9 @@ def _cmd_design(args) -> int:
     from nanosim.pipeline.run import step_design
     from nanosim.pipeline.runfolder import staged_run
 
-    from nanosim.pipeline.runfolder import verify_input_file
-
     cfg = _design_config(args)
-    model = verify_input_file(args.model, "--model").resolve()      # a sealed run's model must match it
+    model = _check_model(args.model)
+    _check_mjcf(args)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True) as stage:
         step_design(stage, cfg, model_npz=model, mjcf=args.mjcf)
@@ -139,18 +246,15 @@ def _cmd_design(args) -> int:
 
 
 def _cmd_characterize(args) -> int:
-    from nanosim.design.controller import DiscreteController
+    from nanosim import experiments
     from nanosim.pipeline.run import step_characterize
     from nanosim.pipeline.runfolder import staged_run
 
-    from nanosim import experiments
     known = experiments.load_builtin()
     if args.only is not None and args.only not in known:
         raise ValueError(f"--only: expected one of {', '.join(known)}, got {args.only!r}")
-    from nanosim.pipeline.runfolder import verify_input_file
-
-    controller = verify_input_file(args.controller, "--controller").resolve()   # a sealed run must match
-    DiscreteController.from_npz(controller, expected_dt=C.CONTROL_PERIOD_S)   # validate before any work
+    controller = _check_controller(args.controller)         # validate before any work
+    _check_mjcf(args)
     cfg = CharacterizeConfig(seed=args.seed, only=args.only, twin=args.twin)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
@@ -166,13 +270,16 @@ def _cmd_pipeline(args) -> int:
 
     cfg = PipelineConfig(seed=args.seed, mjcf=args.mjcf, identify=IdentifyConfig(seed=args.seed),
                          design=_design_config(args))
+    _check_mjcf(args)
     t0 = time.perf_counter()
-    if args.seeds:                              # several seeds, batched (nanosim.pipeline.seeds)
-        from nanosim.pipeline.seeds import parse_seeds, run_pipeline_seeds
-        seeds = parse_seeds(args.seeds)
+    if args.seeds is not None:                  # several seeds, batched (nanosim.pipeline.seeds); parsed by its type
+        from nanosim.pipeline.seeds import run_pipeline_seeds
+        seeds = args.seeds
         with staged_run(args.out, seed=seeds[0]) as stage:
             doc = run_pipeline_seeds(stage, seeds, cfg)
-        print(f"pipeline done in {time.perf_counter() - t0:.1f} s for seeds {args.seeds}: checked quantities inside "
+        span = (f"{seeds[0]}-{seeds[-1]}" if seeds == tuple(range(seeds[0], seeds[-1] + 1))
+                else ",".join(map(str, seeds)))
+        print(f"pipeline done in {time.perf_counter() - t0:.1f} s for seeds {span}: checked quantities inside "
               f"their bands: mean {doc['in_band_mean']:.1f}, worst seed {doc['in_band_worst']} of {doc['banded']}; "
               f"report: {Path(args.out) / A.REPORT_MD}")
         return 0
@@ -211,6 +318,7 @@ def _cmd_ablation(args) -> int:
     if unknown:
         raise ValueError(f"--rows: expected names among {names}, got {unknown}")
     run = sealed_run(args.run)                  # refuse a folder whose files do not match its manifest
+    _check_mjcf(args)
     seed = 0 if run.seed is None else int(run.seed)
     with staged_run(args.run, keep_existing=True, seed=seed) as stage, tempfile.TemporaryDirectory() as work:
         res = run_ablation(work, seed=seed, twin=not args.mujoco, redesign=not args.fixed_controller,
@@ -223,14 +331,14 @@ def _cmd_ablation(args) -> int:
 
 
 def _cmd_montecarlo(args) -> int:
-    from nanosim.design.controller import DiscreteController
     from nanosim.pipeline.config import MonteCarloConfig
     from nanosim.pipeline.mc_stats import load_spec
     from nanosim.pipeline.montecarlo import run_montecarlo
 
-    DiscreteController.from_npz(args.controller, expected_dt=C.CONTROL_PERIOD_S)   # validate before any work
+    _check_controller(args.controller)          # validate before any work (--scheduler's form: its type)
     if args.spec:
         load_spec(args.spec)
+    _check_mjcf(args)
     cfg = MonteCarloConfig(n=args.n, seed=args.seed, crosscheck=args.crosscheck, spec=args.spec,
                            scheduler=args.scheduler, workers=args.workers, mjcf=args.mjcf)
     s = run_montecarlo(args.controller, args.out, cfg, say=_say)
@@ -244,10 +352,12 @@ def _cmd_montecarlo(args) -> int:
 def _cmd_sweep(args) -> int:
     from nanosim.pipeline.config import SweepConfig
     from nanosim.pipeline.runfolder import staged_run
-    from nanosim.pipeline.sweep import parse_param, run_sweep
+    from nanosim.pipeline.sweep import check_params, parse_param, run_sweep
 
     cfg = SweepConfig(params=tuple(parse_param(p) for p in args.param), seed=args.seed, design=_design_config(args),
                       scheduler=args.scheduler, workers=args.workers, mjcf=args.mjcf)
+    _check_mjcf(args)
+    check_params(cfg.params, cfg.mjcf)
     t0 = time.perf_counter()
     with staged_run(args.out, seed=args.seed) as stage:
         doc = run_sweep(stage, cfg, say=_say)
@@ -256,27 +366,16 @@ def _cmd_sweep(args) -> int:
     return 0
 
 
-def _seed_list(text: str) -> tuple:
-    """``0-4`` or ``0,3,7`` -> distinct seeds (for ``nanosim compare``)."""
-    out = []
-    try:
-        for part in text.split(","):
-            a, _, b = part.strip().partition("-")
-            lo, hi = int(a), int(b or a)
-            if lo < 0 or hi < lo:
-                raise ValueError
-            out += [s for s in range(lo, hi + 1) if s not in out]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a range like 0-4 or a list like 0,3,7 of integers >= 0, "
-                                         f"got {text!r}") from None
-    return tuple(out)
-
-
 def _cmd_compare(args) -> int:
-    from nanosim.pipeline.compare import run_compare
+    from nanosim.pipeline.compare import check_controllers, check_only, run_compare
     from nanosim.pipeline.config import CompareConfig
     from nanosim.pipeline.runfolder import staged_run
 
+    check_only(args.only)                       # everything checked before any progress output
+    check_controllers(args.controllers)
+    if args.model is not None:
+        _check_model(args.model)
+    _check_mjcf(args)
     cfg = CompareConfig(controllers=tuple(args.controllers), seeds=args.seeds, twin=args.twin,
                         only=tuple(args.only) if args.only else None, model=args.model,
                         robustness=not args.no_robustness)
@@ -310,19 +409,24 @@ def _add_design_arguments(parser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``nanosim`` argument parser (one-line usage errors, exit 2)."""
+    from nanosim.pipeline.seeds import MAX_SEEDS
+    from nanosim.pipeline.sweep import param_names          # the names parse_param accepts
+
     p = _OneLineParser(prog="nanosim", description=__doc__.splitlines()[0])
     p.add_argument("--version", action="version", version=f"nanosim {__version__}")
+    out = _out_folder("--out")
     sub = p.add_subparsers(dest="command", required=True)
     seed_help = "seed of every random source (integer >= 0)"
     m = sub.add_parser("modes", help="modal analysis of the MJCF stage")
     m.add_argument("--mjcf", default=None, type=_file, help="stage MJCF (default: the bundled scene.xml)")
     m.add_argument("--json", action="store_true", help="print JSON (modes, static gain, closure violation)")
-    m.add_argument("--plot", metavar="DIR", default=None, help="write one PNG per mode shape into DIR")
+    m.add_argument("--plot", metavar="DIR", default=None, type=_out_folder("--plot"),
+                   help="write one PNG per mode shape into DIR")
     m.add_argument("--fmax", type=_float_in(0.0, 1e6, lo_open=True), default=3000.0,
                    help="list modes below this frequency (Hz, > 0)")
     m.set_defaults(func=_cmd_modes)
     i = sub.add_parser("identify", help="identify the 3x3 model from simulated experiments")
-    i.add_argument("--out", required=True, help="run folder for artifacts")
+    i.add_argument("--out", required=True, type=out, help="run folder for artifacts")
     i.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
     i.add_argument("--order", type=_int_at_least(0), default=PAPER_IDENTIFIED_ORDER_PER_COLUMN,
                    help=f"states per 3x1 column (default {PAPER_IDENTIFIED_ORDER_PER_COLUMN}, the paper's; "
@@ -335,13 +439,13 @@ def build_parser() -> argparse.ArgumentParser:
     i.set_defaults(func=_cmd_identify)
     d = sub.add_parser("design", help="reduce the model and synthesize the H-infinity controller")
     d.add_argument("--model", required=True, type=_file, help="model.npz from 'nanosim identify'")
-    d.add_argument("--out", required=True)
+    d.add_argument("--out", required=True, type=out)
     _add_design_arguments(d)
     d.add_argument("--mjcf", default=None, type=_file)
     d.set_defaults(func=_cmd_design)
     c = sub.add_parser("characterize", help="closed-loop experiments of the paper's Section 5")
     c.add_argument("--controller", required=True, type=_file, help="controller.npz from 'nanosim design'")
-    c.add_argument("--out", required=True)
+    c.add_argument("--out", required=True, type=out)
     c.add_argument("--only", default=None, help="run one registered experiment (hysteresis, creep, resolution, "
                                                 "small_steps, bandwidth, tracking, contouring, ...)")
     c.add_argument("--twin", action="store_true", help="run against the linear twin (same electromechanics)")
@@ -349,10 +453,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--mjcf", default=None, type=_file)
     c.set_defaults(func=_cmd_characterize)
     pl = sub.add_parser("pipeline", help="run the whole chain on the bundled stage")
-    pl.add_argument("--out", required=True, help="run folder for artifacts")
+    pl.add_argument("--out", required=True, type=out, help="run folder for artifacts")
     pl.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
-    pl.add_argument("--seeds", default=None, metavar="0-4", help="several seeds (a range or a list), batched; "
-                                                                  "one folder per seed and a summary report")
+    pl.add_argument("--seeds", default=None, type=_seeds(sort=True), metavar="0-4",
+                    help=f"several seeds (a range or a list, at most {MAX_SEEDS}), batched; one folder per seed and a "
+                         "summary report")
     pl.add_argument("--mjcf", default=None, type=_file)
     _add_design_arguments(pl)
     pl.set_defaults(func=_cmd_pipeline)
@@ -372,22 +477,23 @@ def build_parser() -> argparse.ArgumentParser:
     mc = sub.add_parser("montecarlo", help="one controller on a population of fabricated stages (tolerances)")
     mc.add_argument("--n", type=_int_at_least(1), default=200, help="number of fabricated stages (default 200)")
     mc.add_argument("--controller", required=True, type=_file, help="controller.npz from 'nanosim design'")
-    mc.add_argument("--out", required=True, help="run folder (a rerun resumes it)")
+    mc.add_argument("--out", required=True, type=out, help="run folder (a rerun resumes it)")
     mc.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
     mc.add_argument("--spec", default=None, type=_file, help="JSON spec (limits with units); default: paper bands")
     mc.add_argument("--crosscheck", type=_int_at_least(0), default=10, help="samples rerun on MuJoCo (default 10)")
-    mc.add_argument("--scheduler", default=None, help="Dask scheduler tcp://HOST:8786, or 'local' for a LocalCluster "
-                                                      "(default: a local process pool)")
+    mc.add_argument("--scheduler", default=None, type=_scheduler,
+                    help="Dask scheduler tcp://HOST:8786, or 'local' for a LocalCluster "
+                         "(default: a local process pool)")
     mc.add_argument("--workers", type=_int_at_least(1), default=None, help="local worker processes (default: CPUs)")
     mc.add_argument("--mjcf", default=None, type=_file)
     mc.set_defaults(func=_cmd_montecarlo)
     sw = sub.add_parser("sweep", help="flexure design sweep: bandwidth vs travel vs resolution, Pareto front")
     sw.add_argument("--param", action="append", required=True, metavar="NAME=start:stop:n",
-                    help="thickness.<family> (um), stiffness.<family> (factor), target_mass_g, piezo_gain; "
-                         "families fourbar1, fourbar2, swing, lever, crank_bend; repeat for a grid")
-    sw.add_argument("--out", required=True, help="run folder for artifacts")
+                    help=f"{param_names()}; repeat for a grid")
+    sw.add_argument("--out", required=True, type=out, help="run folder for artifacts")
     sw.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
-    sw.add_argument("--scheduler", default=None, help="Dask scheduler tcp://HOST:8786, or 'local' (LocalCluster)")
+    sw.add_argument("--scheduler", default=None, type=_scheduler,
+                    help="Dask scheduler tcp://HOST:8786, or 'local' (LocalCluster)")
     sw.add_argument("--workers", type=_int_at_least(1), default=None, help="local worker processes (default: CPUs)")
     sw.add_argument("--mjcf", default=None, type=_file)
     _add_design_arguments(sw)
@@ -398,8 +504,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="bench names (paper, hinf-damped, pi-notch, damping-tracking, robust, feedforward, lqg, "
                          "lqg-nominal), "
                          ".npz/.mat state spaces (A, B, C, D, dt) or module:function returning a controller object")
-    cp.add_argument("--seeds", type=_seed_list, default=(0,), help="seeds, a range like 0-4 or a list (default 0)")
-    cp.add_argument("--out", required=True, help="run folder for the scorecard")
+    cp.add_argument("--seeds", type=_seeds(sort=False), default=(0,),
+                    help=f"seeds, a range like 0-4 or a list (default 0; at most {MAX_SEEDS})")
+    cp.add_argument("--out", required=True, type=out, help="run folder for the scorecard")
     cp.add_argument("--model", default=None, help="identified model.npz (or a run folder holding one) for the "
                                                    "bench designs and the analysis (default: identify on the first "
                                                    "seed)")

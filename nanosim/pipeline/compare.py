@@ -39,7 +39,8 @@ from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import CompareConfig
 from nanosim.pipeline.scorecard import scorecard, write_scorecard
 
-__all__ = ["feedback_sensitivity", "FeedbackSensitivity", "run_compare", "resolve_model"]
+__all__ = ["feedback_sensitivity", "FeedbackSensitivity", "run_compare", "resolve_model", "check_controllers",
+           "check_only"]
 
 
 # =====================================================================================
@@ -133,6 +134,56 @@ def resolve_model(model, out: Path, seed: int, mjcf=None, progress=None):
     return Gd, p
 
 
+def _named(name: str, msg: str) -> str:
+    """``"controller: no such file 'x'"`` -> ``"--controllers: no such file 'x'"``."""
+    msg = msg.strip().splitlines()[0] if msg.strip() else "cannot be loaded"
+    for bare in (f"{name}: ", "controller: ", "controllers: "):
+        if msg.startswith(bare):
+            msg = msg[len(bare):]
+    return f"{name}: {msg}"
+
+
+def check_controllers(controllers) -> None:
+    """Every ``--controllers`` entry loadable, before any work or progress output (``ValueError``).
+
+    Bench names are designed later (they need the identified model); files are read and checked
+    (state space, 3 channels, the control period; a file in a sealed run folder must match its
+    manifest) and ``module:function`` entries imported and called once, as :func:`run_compare` does.
+    Two entries with the same label are refused.
+    """
+    from nanosim.pipeline.runfolder import verify_input_file
+
+    labels = []
+    for c in controllers:
+        if _is_bench(c):
+            labels.append(c)
+            continue
+        try:
+            if Path(c).suffix in (".npz", ".mat") and Path(c).is_dir():
+                raise ValueError(f"expected a file, got the directory {c!r}")
+            if Path(c).is_file():
+                verify_input_file(c, "--controllers")
+            labels.append(load_controller(c, None).name)
+        except ValueError as exc:
+            raise ValueError(_named("--controllers", str(exc))) from None
+        except Exception as exc:            # noqa: BLE001 -- a user's module failing to import or run
+            raise ValueError(f"--controllers: {c!r} failed to load: {type(exc).__name__}: {exc}") from None
+    dup = sorted({x for x in labels if labels.count(x) > 1})
+    if dup:
+        raise ValueError(f"--controllers: expected distinct names, got {dup[0]!r} more than once ({labels}); "
+                         "rename a file")
+
+
+def check_only(only) -> list:
+    """The experiments ``only`` names (all registered ones for ``None``); ``ValueError`` naming ``--only``."""
+    known = experiments.load_builtin()
+    names = list(only) if only else list(known)
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise ValueError(f"--only: unknown experiment {bad[0]!r}; expected some of {list(known)}")
+    return names
+
+
 def _robustness(spec: ControllerSpec, out: Path, Gd, twin_sysd) -> dict | None:
     from nanosim.design.robustness import LoopPlant
     from nanosim.pipeline.design import write_robustness
@@ -213,11 +264,7 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
     say = progress or (lambda m: None)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    known = experiments.load_builtin()
-    names = list(config.only) if config.only else list(known)
-    bad = [n for n in names if n not in known]
-    if bad:
-        raise ValueError(f"only: unknown experiment {bad[0]!r}; expected some of {list(known)}")
+    names = check_only(config.only)
     t0 = time.perf_counter()
     needs_model = any(_is_bench(c) for c in config.controllers)
     Gd, model_path = (resolve_model(config.model, out, config.seeds[0], mjcf, say) if needs_model or config.model
@@ -228,7 +275,7 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
         specs.append(load_controller(c, Gd))
     labels = [s.name for s in specs]
     if len(set(labels)) != len(labels):
-        raise ValueError(f"controllers: two controllers share a name ({labels}); rename a file")
+        raise ValueError(f"--controllers: two controllers share a name ({labels}); rename a file")
     factory, base = make_factory(config.twin, mjcf=mjcf)
     G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
     twin_sysd = linearize(Stage(config=StageConfig.ideal(), model=base.model)).sysd_V

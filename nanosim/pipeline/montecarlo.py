@@ -22,12 +22,15 @@ Run folder (incremental; see the README):
 * ``manifest.json`` last.
 
 A staging folder (``runfolder.staged_run``) would throw away finished samples
-on Ctrl-C, so this command writes in place: it holds the folder's writer
-lock, removes a previous ``manifest.json`` before it changes anything, and
-seals the folder with a new manifest only when everything is written.
+on Ctrl-C, so this command writes in place: it checks its input and the folder,
+and connects to the scheduler (or starts the pool), before it writes anything;
+then it holds the folder's writer lock, removes a previous ``manifest.json``
+before it changes anything, and seals the folder with a new manifest only when
+everything is written.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -41,7 +44,7 @@ from nanosim.fileio import save_figure, write_json, write_text
 from nanosim.pipeline import mc_stats
 from nanosim.pipeline.config import MonteCarloConfig
 from nanosim.pipeline.runfolder import RunFolderError, check_writable, sha256_file, write_manifest, writer_lock
-from nanosim.pipeline.scaleout import open_executor, run_tasks
+from nanosim.pipeline.scaleout import check_scheduler, open_executor, run_tasks
 
 __all__ = ["run_montecarlo", "run_chunk", "sample_plants", "summarize", "report_markdown"]
 
@@ -158,6 +161,21 @@ def _chunks(indices: list, size: int) -> list:
     return [indices[k:k + size] for k in range(0, len(indices), size)]
 
 
+def _check_out(out: Path, plan: dict) -> None:
+    """Refuse an ``out`` holding another Monte Carlo or files that are not one (reads only)."""
+    prev = out / PLAN_JSON
+    if prev.is_file():
+        try:
+            old = json.loads(prev.read_text()).get("identity")
+        except (ValueError, AttributeError):
+            old = None
+        if old != plan["identity"]:
+            raise RunFolderError(f"--out: {str(out)!r} holds a Monte Carlo with another controller, seed, stage "
+                                 "or experiment list; choose another folder")
+    elif out.is_dir() and any(out.iterdir()):
+        raise RunFolderError(f"--out: {str(out)!r} is not empty and holds no Monte Carlo; choose another folder")
+
+
 def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = None, *, progress: bool = True,
                    say=None) -> dict:
     """Run (or resume) a Monte Carlo into ``out``; returns ``summary.json``'s content.
@@ -187,47 +205,55 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
     bad = [n for n in names if n not in known]
     if bad:
         raise ValueError(f"experiments: unknown {bad[0]!r}; expected some of {list(known)}")
+    check_scheduler(settings.scheduler)                     # its form, before anything is written
     out = check_writable(out).resolve()
     tm = default_tolerances(load_model(settings.mjcf))
     plan = _plan(controller_path, settings, names, tm.to_dict())
-    out.mkdir(parents=True, exist_ok=True)
+    _check_out(out, plan)
+    n_cross = min(settings.crosscheck, settings.n)
+    phases = ((SAMPLES_DIR, "twin", settings.n), (CROSSCHECK_DIR, "mujoco", n_cross))
+
+    def todo_of(sub, count):
+        return [i for i in range(count) if not _sample_path(out, sub, i).is_file()]
+
     t_start = time.perf_counter()
-    with writer_lock(out):
-        prev = out / PLAN_JSON
-        if prev.is_file():
-            old = json.loads(prev.read_text()).get("identity")
-            if old != plan["identity"]:
-                raise RunFolderError(f"--out: {str(out)!r} holds a Monte Carlo with another controller, seed, stage "
-                                     "or experiment list; choose another folder")
-        elif any(out.iterdir()):
-            raise RunFolderError(f"--out: {str(out)!r} is not empty and holds no Monte Carlo; choose another folder")
+    with contextlib.ExitStack() as stack:
+        # connect (Dask) or start the pool before anything is written: a scheduler that does not answer
+        # leaves --out as it was; a sealed folder keeps its manifest until the work starts
+        scale = (stack.enter_context(open_executor(settings.scheduler, settings.workers))
+                 if any(todo_of(sub, count) for sub, _, count in phases) else None)
+        stack.enter_context(writer_lock(out))
+        _check_out(out, plan)                               # again under the lock
+        out.mkdir(exist_ok=True)
+        # the work starts: a folder being changed is no longer sealed (a rerun resumes it, skipping the
+        # finished samples, and seals it again)
         (out / "manifest.json").unlink(missing_ok=True)
-        write_json(prev, {"identity": plan["identity"], "n": settings.n, "mjcf": plan["mjcf"],
-                          "experiments": names, "engine": "linear twin, every effect on",
-                          "crosscheck_engine": "MuJoCo, every effect on"})
+        write_json(out / PLAN_JSON, {"identity": plan["identity"], "n": settings.n, "mjcf": plan["mjcf"],
+                                     "experiments": names, "engine": "linear twin, every effect on",
+                                     "crosscheck_engine": "MuJoCo, every effect on"})
         write_json(out / "tolerances.json", tm.to_dict())
         write_json(out / "spec.json", spec)
         timings = {}
-        n_cross = min(settings.crosscheck, settings.n)
-        for sub, engine, count in ((SAMPLES_DIR, "twin", settings.n), (CROSSCHECK_DIR, "mujoco", n_cross)):
-            todo = [i for i in range(count) if not _sample_path(out, sub, i).is_file()]
+        for sub, engine, count in phases:
+            todo = todo_of(sub, count)
             t0 = time.perf_counter()
             if todo:
-                with open_executor(settings.scheduler, settings.workers) as scale:
-                    size = settings.chunk or max(1, min(64, math.ceil(len(todo) / (2 * scale.workers))))
-                    if engine == "mujoco":
-                        size = settings.chunk or max(1, math.ceil(len(todo) / scale.workers))
-                    say(f"{len(todo)} of {count} {engine} samples to run ({count - len(todo)} done) on "
-                        f"{scale.description}, chunks of {size}")
-                    units = len(names) + 1
+                if scale is None:
+                    scale = stack.enter_context(open_executor(settings.scheduler, settings.workers))
+                size = settings.chunk or max(1, min(64, math.ceil(len(todo) / (2 * scale.workers))))
+                if engine == "mujoco":
+                    size = settings.chunk or max(1, math.ceil(len(todo) / scale.workers))
+                say(f"{len(todo)} of {count} {engine} samples to run ({count - len(todo)} done) on "
+                    f"{scale.description}, chunks of {size}")
+                units = len(names) + 1
 
-                    def done(task, records, sub=sub):
-                        for rec in records:
-                            write_json(_sample_path(out, sub, rec["index"]), rec)
+                def done(task, records, sub=sub):
+                    for rec in records:
+                        write_json(_sample_path(out, sub, rec["index"]), rec)
 
-                    run_tasks(scale, run_chunk, [(plan, c, engine) for c in _chunks(todo, size)], done,
-                              total_units=count * units, done_units=(count - len(todo)) * units,
-                              desc=f"montecarlo {engine}", progress=progress)
+                run_tasks(scale, run_chunk, [(plan, c, engine) for c in _chunks(todo, size)], done,
+                          total_units=count * units, done_units=(count - len(todo)) * units,
+                          desc=f"montecarlo {engine}", progress=progress)
             timings[f"{engine}_seconds"] = round(time.perf_counter() - t0, 2)
             timings[f"{engine}_samples_run"] = len(todo)
         summary = summarize(out, settings, spec, names, tm)

@@ -10,11 +10,13 @@ A lock file refuses a second writer on the same ``--out``.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import os
 import shutil
 import sys
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,11 +35,17 @@ class RunFolderError(ValueError):
 def check_writable(out: str | os.PathLike, name: str = "--out") -> Path:
     """Check before any work that ``out`` can become a run folder; returns it as a Path.
 
+    The nearest existing ancestor of ``out``'s parent must accept a new folder: one is
+    created there and removed at once (``os.access`` alone says yes to root on ``/proc``,
+    an immutable folder, ...).
+
     Raises
     ------
     RunFolderError
-        ``out`` is an existing file, or its parent is missing/not a directory/not writable.
+        ``out`` is empty or an existing file, or its parent is missing/not a directory/not writable.
     """
+    if not str(out).strip():
+        raise RunFolderError(f"{name}: expected a folder path, got {str(out)!r}")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise RunFolderError(f"{name}: expected a directory, got an existing file {str(out)!r}")
@@ -47,11 +55,39 @@ def check_writable(out: str | os.PathLike, name: str = "--out") -> Path:
         probe = probe.parent
     if not probe.is_dir():
         raise RunFolderError(f"{name}: {str(probe)!r} is not a directory")
+    denied = f"{name}: cannot write in {str(probe)!r} (permission denied or read-only)"
     if not os.access(probe, os.W_OK | os.X_OK):
-        raise RunFolderError(f"{name}: cannot write in {str(probe)!r} (permission denied or read-only)")
+        raise RunFolderError(denied)
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".nanosim-probe-", dir=probe))
+    except OSError as exc:
+        if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            raise RunFolderError(denied) from None
+        raise RunFolderError(f"{name}: cannot create {str(out)!r}: no new folder can be made in {str(probe)!r} "
+                             f"({exc.strerror or exc})") from None
     if out.is_dir() and not os.access(out, os.R_OK | os.X_OK):
         raise RunFolderError(f"{name}: cannot read {str(out)!r}")
     return out
+
+
+def _make_parents(folder: Path) -> list[Path]:
+    """``mkdir -p folder``; returns the folders it created, deepest first (see :func:`_remove_empty`)."""
+    made = []
+    p = folder
+    while not p.exists():
+        made.append(p)
+        p = p.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    return made
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove the folders :func:`_make_parents` created if they are still empty (a failed command)."""
+    for p in folders:
+        try:
+            p.rmdir()
+        except OSError:
+            return
 
 
 def sha256_file(path: Path) -> str:
@@ -263,13 +299,19 @@ def writer_lock(out: str | os.PathLike):
     :class:`RunFolderError`; a lock left by a dead process is taken over.
     """
     out = Path(out).resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
+    made = _make_parents(out.parent)            # removed again if the command fails before writing into them
     lock = _Lock(out.parent / f".{out.name}.lock")
-    lock.acquire()
+    try:
+        lock.acquire()
+    except BaseException:
+        _remove_empty(made)
+        raise
     try:
         yield out
+        made = []
     finally:
         lock.release()
+        _remove_empty(made)
 
 
 @contextlib.contextmanager
@@ -298,9 +340,13 @@ def staged_run(out: str | os.PathLike, *, keep_existing: bool = False, seed=None
     if not _is_run_folder_or_empty(out):
         raise RunFolderError(f"--out: {str(out)!r} holds files but no {MANIFEST_JSON}, so it is not a nanosim run "
                              "folder; choose a new or empty folder")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    made = _make_parents(out.parent)            # removed again unless the run is swapped in
     lock = _Lock(out.parent / f".{out.name}.lock")
-    lock.acquire()
+    try:
+        lock.acquire()
+    except BaseException:
+        _remove_empty(made)
+        raise
     stage = out.parent / f".{out.name}.staging-{os.getpid()}"
     old = out.parent / f".{out.name}.old-{os.getpid()}"
     try:
@@ -321,9 +367,11 @@ def staged_run(out: str | os.PathLike, *, keep_existing: bool = False, seed=None
         if out.exists():
             os.replace(out, old)
         os.replace(stage, out)
+        made = []
         shutil.rmtree(old, ignore_errors=True)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
         if old.exists() and not out.exists():       # swap interrupted between the two renames
             os.replace(old, out)
         lock.release()
+        _remove_empty(made)

@@ -30,7 +30,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
-__all__ = ["ScaleOut", "open_executor", "run_tasks", "cpu_workers"]
+__all__ = ["ScaleOut", "open_executor", "run_tasks", "cpu_workers", "check_scheduler"]
 
 
 def cpu_workers() -> int:
@@ -39,6 +39,31 @@ def cpu_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:      # pragma: no cover -- not Linux
         return max(1, os.cpu_count() or 1)
+
+
+def check_scheduler(scheduler: str | None) -> str | None:
+    """``None``, ``"local"`` or a Dask address ``PROTOCOL://HOST:PORT``; ``ValueError`` naming ``--scheduler``.
+
+    Checks the form only (before any work); whether a scheduler answers there is known only by
+    connecting (:func:`open_executor`).
+    """
+    if scheduler is None or scheduler == "local":
+        return scheduler
+    from urllib.parse import urlsplit
+
+    expected = (f"--scheduler: expected 'local' or an address tcp://HOST:PORT (e.g. tcp://10.0.0.5:8786), "
+                f"got {scheduler!r}")
+    if not isinstance(scheduler, str) or "://" not in scheduler:
+        raise ValueError(expected)
+    try:
+        url = urlsplit(scheduler)
+        port = url.port
+    except ValueError:
+        raise ValueError(expected) from None
+    if not url.scheme.isalnum() or not url.hostname or port is None or not 0 < port < 65536 \
+            or url.path not in ("", "/") or url.query or url.fragment:
+        raise ValueError(expected)
+    return scheduler
 
 
 class _InlineExecutor:
@@ -156,8 +181,7 @@ def open_executor(scheduler: str | None = None, workers: int | None = None):
                 pool.shutdown(wait=False, cancel_futures=True)
                 raise
         return
-    if not isinstance(scheduler, str) or not (scheduler == "local" or "://" in scheduler):
-        raise ValueError(f"--scheduler: expected 'local' or an address like tcp://HOST:8786, got {scheduler!r}")
+    check_scheduler(scheduler)
     try:
         from distributed import Client, LocalCluster
     except ImportError:       # pragma: no cover -- dask[distributed] is a dependency
@@ -174,6 +198,8 @@ def open_executor(scheduler: str | None = None, workers: int | None = None):
                 client = Client(scheduler, timeout=10)
             except (OSError, TimeoutError) as exc:
                 raise ValueError(f"--scheduler: cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+            except ValueError as exc:           # an address distributed cannot parse or a protocol it lacks
+                raise ValueError(f"--scheduler: cannot use the address {scheduler!r} ({exc})") from None
             n = max(1, len(client.scheduler_info().get("workers", {})))
             where = f"Dask scheduler {scheduler} ({n} workers)"
         try:

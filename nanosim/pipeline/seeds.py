@@ -43,25 +43,36 @@ _KEY = ("bandwidth_S_hz", "bandwidth_T_hz", "step_2um.settling_ms", "step_2um.ov
         "contouring.1000um_s.mean_error_nm")
 
 
-def parse_seeds(text: str) -> tuple[int, ...]:
-    """``"0-4"`` or ``"0,3,7"`` (or a mix) -> sorted distinct seeds."""
-    out = set()
+MAX_SEEDS = 1000        # a bound on --seeds: 1000 seeds are ~1000 pipeline runs, more is a typo
+
+
+def parse_seeds(text: str, *, sort: bool = True) -> tuple[int, ...]:
+    """``"0-4"`` or ``"0,3,7"`` (or a mix) -> distinct seeds, sorted (or in the order given, ``sort=False``).
+
+    Raises
+    ------
+    ValueError
+        Not a range/list of integers >= 0, or more than :data:`MAX_SEEDS` seeds (checked before
+        any list is built).
+    """
+    out: dict[int, None] = {}
+    what = f"a range like 0-4 or a list like 0,3,7 of at most {MAX_SEEDS} integers >= 0"
     try:
         for part in str(text).split(","):
-            part = part.strip()
-            if "-" in part:
-                a, b = (int(x) for x in part.split("-", 1))
-                if b < a:
-                    raise ValueError
-                out.update(range(a, b + 1))
-            else:
-                out.add(int(part))
+            a, dash, b = part.strip().partition("-")
+            lo, hi = int(a), int(b) if dash else int(a)
+            if lo < 0 or hi < lo:
+                raise ValueError
+            if hi - lo + 1 > MAX_SEEDS:             # before the range is built
+                raise OverflowError(f"{hi - lo + 1}")
+            out.update(dict.fromkeys(range(lo, hi + 1)))
+            if len(out) > MAX_SEEDS:
+                raise OverflowError(f"more than {MAX_SEEDS}")
+    except OverflowError as exc:
+        raise ValueError(f"--seeds: expected at most {MAX_SEEDS} seeds, got {exc} in {text!r}") from None
     except ValueError:
-        raise ValueError(f"--seeds: expected a range like 0-4 or a list like 0,3,7 of integers >= 0, got {text!r}") \
-            from None
-    if not out or min(out) < 0:
-        raise ValueError(f"--seeds: expected integers >= 0, got {text!r}")
-    return tuple(sorted(out))
+        raise ValueError(f"--seeds: expected {what}, got {text!r}") from None
+    return tuple(sorted(out)) if sort else tuple(out)
 
 
 def _seed_dir(out: Path, seed: int) -> Path:

@@ -39,7 +39,8 @@ from nanosim.fileio import save_figure, write_json, write_text
 from nanosim.pipeline.config import DesignConfig, SweepConfig
 from nanosim.pipeline.scaleout import open_executor, run_tasks
 
-__all__ = ["parse_param", "point_model", "design_for_point", "run_sweep", "pareto_front", "SWEEP_EXPERIMENTS"]
+__all__ = ["parse_param", "param_names", "check_params", "point_model", "design_for_point", "run_sweep",
+           "pareto_front", "SWEEP_EXPERIMENTS"]
 
 SWEEP_EXPERIMENTS = ("bandwidth", "resolution")
 FIG_PARETO = "fig_sweep_pareto.png"
@@ -59,6 +60,14 @@ def _chain_length_fields() -> list[str]:
     return [f.name[:-2] for f in fields(ChainGeometry) if f.name.endswith("_m")]
 
 
+def param_names() -> str:
+    """The parameter names :func:`parse_param` accepts, as one line (its error and ``--help`` use it)."""
+    return (f"thickness.<family> (um) or stiffness.<family> (factor), families {', '.join(FAMILIES)} "
+            f"(aliases {', '.join(f'{a}={b}' for a, b in _ALIASES.items())}; stiffness.apa only with an MJCF that "
+            f"has APA notch joints); length_mm.<chain length> ({', '.join(_chain_length_fields())}); "
+            "target_mass_g (g); piezo_gain (factor)")
+
+
 def parse_param(text: str) -> tuple[str, float, float, int]:
     """``NAME=start:stop:n`` -> ``(name, start, stop, n)``; ``ValueError`` naming what is wrong."""
     if "=" not in text:
@@ -70,18 +79,40 @@ def parse_param(text: str) -> tuple[str, float, float, int]:
     ok = (name in ("target_mass_g", "piezo_gain") or (kind in ("thickness", "stiffness") and fam in FAMILIES)
           or (kind == "length_mm" and fam in _chain_length_fields()))
     if not ok:
-        raise ValueError(f"--param: unknown parameter {name!r}; expected thickness.<family> or stiffness.<family> "
-                         f"(families {', '.join(FAMILIES)}), length_mm.<chain length> "
-                         f"({', '.join(_chain_length_fields())}), target_mass_g or piezo_gain")
+        raise ValueError(f"--param: unknown parameter {name!r}; expected {param_names()}")
     parts = span.split(":")
+    if len(parts) != 3:
+        raise ValueError(f"--param {name}: expected NAME=start:stop:n (3 fields after '='), got {span!r} "
+                         f"({len(parts)} field{'s' if len(parts) != 1 else ''})")
     try:
         start, stop, n = float(parts[0]), float(parts[1]), int(parts[2])
-    except (IndexError, ValueError):
+    except ValueError:
         raise ValueError(f"--param {name}: expected start:stop:n with numbers and an integer count, got {span!r}") \
             from None
-    if len(parts) != 3 or n < 1 or not (math.isfinite(start) and math.isfinite(stop)) or start <= 0 or stop <= 0:
+    if n < 1 or not (math.isfinite(start) and math.isfinite(stop)) or start <= 0 or stop <= 0:
         raise ValueError(f"--param {name}: expected positive start and stop and n >= 1, got {span!r}")
     return f"{kind}.{fam}" if fam else name, start, stop, n
+
+
+def check_params(params, mjcf=None) -> None:
+    """``ValueError`` before any work for parameters the stage cannot take.
+
+    Thickness and length parameters rebuild the bundled stage (no ``--mjcf``); a stiffness
+    family must have joints in the model (the bundled stage lumps the APA notches on the crank).
+    """
+    rebuilt = [name for name, *_ in params if name.partition(".")[0] in ("thickness", "length_mm")]
+    if rebuilt and mjcf is not None:
+        raise ValueError(f"--mjcf: expected none with --param {rebuilt[0]} (thickness and length parameters "
+                         f"rebuild the bundled stage from its geometry), got {str(mjcf)!r}")
+    fams = sorted({name.split(".", 1)[1] for name, *_ in params if name.startswith("stiffness.")})
+    if fams:
+        from nanosim.plant.mjcf import load_model
+
+        for fam in fams:
+            try:
+                load_model(mjcf, stiffness_scale={fam: 1.0})
+            except ValueError as exc:
+                raise ValueError(f"--param stiffness.{fam}: {exc}") from None
 
 
 def point_model(values: dict, mjcf=None):
@@ -244,6 +275,7 @@ def run_sweep(out, config: SweepConfig, *, progress: bool = True, say=None) -> d
 
     if not config.params:
         raise ValueError("--param: expected at least one NAME=start:stop:n")
+    check_params(config.params, config.mjcf)
     out = Path(out)
     axes = [(name, np.linspace(a, b, n)) for name, a, b, n in config.params]
     grid = [dict(zip([n for n, _ in axes], (float(x) for x in combo)))

@@ -25,15 +25,25 @@ __all__ = ["load_controller", "PHYSICS", "LiveSim"]
 
 
 def load_controller(path):
-    """DiscreteController from an .npz file. FileNotFoundError with one line if missing."""
+    """DiscreteController from an .npz file at the loop's 4 kHz; one-line errors naming ``--controller``.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        A directory, not a controller ``.npz``, or a sample time other than the loop's.
+    """
     p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"--controller: expected a controller .npz file, got the directory {str(p)!r}")
     if not p.is_file():
-        raise FileNotFoundError(f"controller: no such file {str(p)!r} (expected a .npz from the synthesis step)")
+        raise FileNotFoundError(f"--controller: no such file {str(p)!r} (expected a .npz from the synthesis step)")
     try:
-        return DiscreteController.from_npz(p)
+        return DiscreteController.from_npz(p, expected_dt=C.CONTROL_PERIOD_S)
     except (OSError, KeyError, ValueError) as exc:
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ValueError(f"controller: cannot read {str(p)!r}: {msg}") from None
+        raise ValueError(f"--controller: {msg}" if str(p) in msg else f"--controller: {str(p)!r}: {msg}") from None
 
 
 PHYSICS = ("mujoco", "linear")
