@@ -156,9 +156,12 @@ def _check_model(path) -> Path:
                          + (" (no model.npz in it)" if Path(path).is_dir() else ""))
     p = verify_input_file(p, "--model").resolve()                 # a sealed run's model must match it
     try:
-        load_state_space_npz(p)
+        _, Gd = load_state_space_npz(p)
     except (OSError, ValueError) as exc:
         raise ValueError(_named("--model", exc)) from None
+    if Gd is not None and not math.isclose(float(Gd.dt), C.CONTROL_PERIOD_S, rel_tol=1e-9):
+        raise ValueError(f"--model: expected a discrete model at the loop's period dt = {C.CONTROL_PERIOD_S:g} s, "
+                         f"got dt = {float(Gd.dt)!r} s in {str(p)!r}")
     return p
 
 
@@ -523,6 +526,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _options(parser: argparse.ArgumentParser, command: str) -> set:
+    """The option strings of a subcommand (``--order``, ...)."""
+    for action in parser._subparsers._group_actions:
+        sub = action.choices.get(command)
+        if sub is not None:
+            return {o for a in sub._actions for o in a.option_strings}
+    return set()
+
+
 def main(argv=None) -> int:
     """Entry point; returns the exit status (0 ok, 2 user error, 130 interrupted)."""
     parser = build_parser()
@@ -531,7 +543,9 @@ def main(argv=None) -> int:
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"{prog}: interrupted; the run folder was left as it was before this command", file=sys.stderr)
+        kept = ("every finished sample is kept; a rerun resumes it" if args.command == "montecarlo"
+                else "the run folder was left as it was before this command")
+        print(f"{prog}: interrupted; {kept}", file=sys.stderr)
         if threading.active_count() > 1:    # experiment threads may be inside MuJoCo: finalizing under them crashes
             sys.stdout.flush()
             sys.stderr.flush()
@@ -541,6 +555,9 @@ def main(argv=None) -> int:
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
             msg = f"{msg}: {exc.filename}"
+        field, sep, rest = msg.partition(": ")                  # a config field's error names its option
+        if sep and field.isidentifier() and f"--{field.replace('_', '-')}" in _options(parser, args.command):
+            msg = f"--{field.replace('_', '-')}: {rest}"
         print(f"{prog}: error: {msg}", file=sys.stderr)
         return 2
 

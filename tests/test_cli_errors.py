@@ -56,7 +56,10 @@ def fx(tmp_path_factory):
          "nan": _controller(d / "nan.npz", A=np.full((1, 1), np.nan)),
          "shape": _controller(d / "shape.npz", B=np.zeros((2, 3))),
          "keys": write_npz(d / "keys.npz", Akd=np.zeros((1, 1))),
-         "model": _model(d / "model.npz"), "model_keys": write_npz(d / "model_keys.npz", A=np.zeros((2, 2)))}
+         "model": _model(d / "model.npz"), "model_keys": write_npz(d / "model_keys.npz", A=np.zeros((2, 2))),
+         "model_dt": write_npz(d / "model_dt.npz", A=-np.eye(2), B=np.ones((2, 3)), C=np.ones((3, 2)),
+                               D=np.zeros((3, 3)), Ad=0.5 * np.eye(2), Bd=np.ones((2, 3)), Cd=np.ones((3, 2)),
+                               Dd=np.zeros((3, 3)), dt=1e-3)}
     for name, text in (("empty.npz", ""), ("text.npz", "not a zip"), ("bad.xml", "<mujoco><worldbody><body>"),
                        ("notjson.json", "{nope"), ("wmissing.json", '{"Wp": 1}')):
         (d / name).write_text(text)
@@ -125,6 +128,8 @@ BAD = [
     (("design", "--model", "{empty_npz}", "--out", NEW), "--model", "not an .npz"),
     (("design", "--model", "{text_npz}", "--out", NEW), "--model"),
     (("design", "--model", "{model_keys}", "--out", NEW), "--model", "missing"),
+    (("design", "--model", "{model_dt}", "--out", NEW), "--model", "dt = 0.001"),
+    (("identify", "--order", "61", "--out", NEW), "--order", "got 61"),
     (("characterize", "--controller", "{empty_npz}", "--out", NEW), "--controller"),
     (("characterize", "--controller", "{keys}", "--out", NEW), "--controller", "missing"),
     (("characterize", "--controller", "{baddt}", "--out", NEW), "--controller", "dt"),
