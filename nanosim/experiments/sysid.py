@@ -22,6 +22,7 @@ import numpy as np
 
 import identification as ident
 from nanosim import constants as C
+from nanosim.design.lti import single_threaded_blas
 from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN
 from nanosim.plant.stage import StageConfig, Trace, run_open_loop_batch
 from nanosim.ramps import raised_cosine
@@ -134,6 +135,12 @@ def identify_stage(settings: IdentifySettings = IdentifySettings(), model=None, 
     ex_e, ex_v, tr_e, tr_v, n0 = run_experiments(settings, model, config, runner)
     if progress:
         progress("experiments simulated")
+    with single_threaded_blas():        # same bits on any core count (tall QR and least squares)
+        return _identify(settings, n0, tr_e, tr_v)
+
+
+def _identify(settings: IdentifySettings, n0: int, tr_e, tr_v) -> IdentifiedStage:
+    """The models of :func:`identify_stage` from its records."""
     est = [_deviation(tr_e[j], n0, j, settings.offset_V) for j in range(3)]
     val = [_deviation(tr_v[j], n0, j, settings.offset_V) for j in range(3)]
 
