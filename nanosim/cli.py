@@ -6,6 +6,7 @@ of defaults) -> pipeline steps. Every user error prints one line and exits 2.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -18,8 +19,8 @@ from nanosim import __version__
 from nanosim import constants as C
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import (DEFAULT_ARCHITECTURE, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER,
-                                     DESIGN_ARCHITECTURES, CharacterizeConfig, DesignConfig,
-                                     IdentifyConfig, PipelineConfig)
+                                     DESIGN_ARCHITECTURES, CharacterizeConfig, CompareConfig, DesignConfig,
+                                     IdentifyConfig, MonteCarloConfig, PipelineConfig)
 from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_REDUCED_ORDER
 
 __all__ = ["build_parser", "main"]
@@ -30,6 +31,11 @@ class _OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _field_default(config_class, name: str):
+    """The default of field ``name`` of a config dataclass, also of one that needs arguments (CompareConfig)."""
+    return next(f.default for f in dataclasses.fields(config_class) if f.name == name)
 
 
 # --- argument types: the message names what was expected and what arrived ---------------------
@@ -312,7 +318,6 @@ def _cmd_ablation(args) -> int:
 
     from nanosim.fileio import write_json, write_text
     from nanosim.pipeline.ablation import ablation_rows, markdown_table, run_ablation
-    from nanosim.pipeline.predictions import ABLATION_JSON
     from nanosim.pipeline.report import write_report
     from nanosim.pipeline.runfolder import sealed_run, staged_run
 
@@ -326,16 +331,15 @@ def _cmd_ablation(args) -> int:
     with staged_run(args.run, keep_existing=True, seed=seed) as stage, tempfile.TemporaryDirectory() as work:
         res = run_ablation(work, seed=seed, twin=not args.mujoco, redesign=not args.fixed_controller,
                            rows=args.rows, mjcf=args.mjcf, log=lambda *a, **k: None, progress=True)
-        write_json(stage / ABLATION_JSON, res)
-        write_text(stage / "ablation.md", markdown_table(res))
+        write_json(stage / A.ABLATION_JSON, res)
+        write_text(stage / A.ABLATION_MD, markdown_table(res))
         write_report(stage)
     print(f"ablation of {len(res['rows'])} rows (seed {seed}); report: {Path(args.run) / A.REPORT_HTML}")
     return 0
 
 
 def _cmd_montecarlo(args) -> int:
-    from nanosim.pipeline.config import MonteCarloConfig
-    from nanosim.pipeline.mc_stats import load_spec
+    from nanosim.pipeline.mc_stats import CROSSCHECK_REL_TOL, load_spec
     from nanosim.pipeline.montecarlo import run_montecarlo
 
     _check_controller(args.controller)          # validate before any work (--scheduler's form: its type)
@@ -347,8 +351,8 @@ def _cmd_montecarlo(args) -> int:
     s = run_montecarlo(args.controller, args.out, cfg, say=_say)
     y = next(r for r in s["yield"] if r["metric"] == "all")
     print(f"montecarlo done in {s['wall_seconds']:.1f} s: yield {y['pass']}/{y['n']} ({y['yield_percent']:.1f} %), "
-          f"MuJoCo cross-check {s['crosscheck_pass']}/{s['crosscheck_n']} within 5 %; "
-          f"report: {Path(args.out) / 'report.md'}")
+          f"MuJoCo cross-check {s['crosscheck_pass']}/{s['crosscheck_n']} within {100 * CROSSCHECK_REL_TOL:g} %; "
+          f"report: {Path(args.out) / A.REPORT_MD}")
     return 0
 
 
@@ -365,13 +369,12 @@ def _cmd_sweep(args) -> int:
     with staged_run(args.out, seed=args.seed) as stage:
         doc = run_sweep(stage, cfg, say=_say)
     print(f"sweep done in {time.perf_counter() - t0:.1f} s: {len(doc['points'])} points, {len(doc['pareto'])} on the "
-          f"Pareto front; report: {Path(args.out) / 'report.md'}")
+          f"Pareto front; report: {Path(args.out) / A.REPORT_MD}")
     return 0
 
 
 def _cmd_compare(args) -> int:
     from nanosim.pipeline.compare import check_controllers, check_only, run_compare
-    from nanosim.pipeline.config import CompareConfig
     from nanosim.pipeline.runfolder import staged_run
 
     check_only(args.only)                       # everything checked before any progress output
@@ -414,6 +417,9 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``nanosim`` argument parser (one-line usage errors, exit 2)."""
     from nanosim.pipeline.seeds import MAX_SEEDS
     from nanosim.pipeline.sweep import param_names          # the names parse_param accepts
+    from nanosim.plant.modes import MODES_LIST_MAX_HZ
+
+    mc_default = MonteCarloConfig()
 
     p = _OneLineParser(prog="nanosim", description=__doc__.splitlines()[0])
     p.add_argument("--version", action="version", version=f"nanosim {__version__}")
@@ -425,7 +431,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--json", action="store_true", help="print JSON (modes, static gain, closure violation)")
     m.add_argument("--plot", metavar="DIR", default=None, type=_out_folder("--plot"),
                    help="write one PNG per mode shape into DIR")
-    m.add_argument("--fmax", type=_float_in(0.0, 1e6, lo_open=True), default=3000.0,
+    m.add_argument("--fmax", type=_float_in(0.0, 1e6, lo_open=True), default=MODES_LIST_MAX_HZ,
                    help="list modes below this frequency (Hz, > 0)")
     m.set_defaults(func=_cmd_modes)
     i = sub.add_parser("identify", help="identify the 3x3 model from simulated experiments")
@@ -478,12 +484,14 @@ def build_parser() -> argparse.ArgumentParser:
     ab.add_argument("--mjcf", default=None, type=_file)
     ab.set_defaults(func=_cmd_ablation)
     mc = sub.add_parser("montecarlo", help="one controller on a population of fabricated stages (tolerances)")
-    mc.add_argument("--n", type=_int_at_least(1), default=200, help="number of fabricated stages (default 200)")
+    mc.add_argument("--n", type=_int_at_least(1), default=mc_default.n,
+                    help=f"number of fabricated stages (default {mc_default.n})")
     mc.add_argument("--controller", required=True, type=_file, help="controller.npz from 'nanosim design'")
     mc.add_argument("--out", required=True, type=out, help="run folder (a rerun resumes it)")
     mc.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
     mc.add_argument("--spec", default=None, type=_file, help="JSON spec (limits with units); default: paper bands")
-    mc.add_argument("--crosscheck", type=_int_at_least(0), default=10, help="samples rerun on MuJoCo (default 10)")
+    mc.add_argument("--crosscheck", type=_int_at_least(0), default=mc_default.crosscheck,
+                    help=f"samples rerun on MuJoCo (default {mc_default.crosscheck})")
     mc.add_argument("--scheduler", default=None, type=_scheduler,
                     help="Dask scheduler tcp://HOST:8786, or 'local' for a LocalCluster "
                          "(default: a local process pool)")
@@ -507,8 +515,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="bench names (paper, hinf-damped, pi-notch, damping-tracking, robust, feedforward, lqg, "
                          "lqg-nominal), "
                          ".npz/.mat state spaces (A, B, C, D, dt) or module:function returning a controller object")
-    cp.add_argument("--seeds", type=_seeds(sort=False), default=(0,),
-                    help=f"seeds, a range like 0-4 or a list (default 0; at most {MAX_SEEDS})")
+    compare_seeds = _field_default(CompareConfig, "seeds")
+    cp.add_argument("--seeds", type=_seeds(sort=False), default=compare_seeds,
+                    help=f"seeds, a range like 0-4 or a list (default {','.join(map(str, compare_seeds))}; "
+                         f"at most {MAX_SEEDS})")
     cp.add_argument("--out", required=True, type=out, help="run folder for the scorecard")
     cp.add_argument("--model", default=None, help="identified model.npz (or a run folder holding one) for the "
                                                    "bench designs and the analysis (default: identify on the first "

@@ -18,7 +18,8 @@ __all__ = ["CONTROL_RATE_HZ", "CONTROL_PERIOD_S", "AMPLIFIER_GAIN", "COMMAND_RAN
            "GAUGE_FILTER_ORDER", "FLOOR_ACCEL_PSD_M2_S4_HZ", "SENSOR_UM_PER_V", "SENSOR_RANGE_UM",
            "SENSOR_NOISE_NM_RMS_1KHZ",
            "ADC_BITS", "ADC_FULL_SCALE_V", "ADC_LSB_V", "ADC_LSB_NM", "JACOBIAN_J",
-           "STATIC_GAIN_SCALE_UM_PER_V", "AXES", "ACTUATORS"]
+           "STATIC_GAIN_SCALE_UM_PER_V", "AXES", "ACTUATORS", "DEFAULT_REDUCED_ORDER", "DEFAULT_DAMPING_ZETA",
+           "DEFAULT_DAMPING_LOWPASS_HZ"]
 
 # --- control loop (paper Sec. 3) --------------------------------------------
 CONTROL_RATE_HZ = 4000.0
@@ -113,6 +114,17 @@ JACOBIAN_J = np.array([[-2.022, -1.190, 3.212],
 # Target static gain, controller volts -> um: 3.0 um/V * J (G_AX(0) = -1.20 sensor
 # V/V = -6.0 um/V and Fig. 14's -10 um at 1.65 V give the 3.0 scale).
 STATIC_GAIN_SCALE_UM_PER_V = 3.0
+
+# --- the controller design's defaults -----------------------------------------
+# Defaults of nanosim.pipeline.config.DesignConfig, here because nanosim.design (the hinf-damped bench
+# design, the damping loop) uses them too and may not import the pipeline.
+# 14 states: the Hankel singular values fall 27x after state 12, and states 13-14 (the
+# 1 s creep stage) move the full-model S bandwidth from 27.9 to 29.7 Hz (README, "Controller").
+DEFAULT_REDUCED_ORDER = 14
+# Damping ratio the inner active-damping loop adds to the first mode (0 = no damping loop).
+DEFAULT_DAMPING_ZETA = 0.1
+# Low-pass corner of the damping loop [Hz] (between the first and the second mode set).
+DEFAULT_DAMPING_LOWPASS_HZ = 400.0
 
 # --- names -------------------------------------------------------------------
 AXES = ("X", "Y", "Z")

@@ -14,10 +14,23 @@ import numpy as np
 __all__ = [
     "PAPER_MODES_HZ", "PAPER_MODE_AXES", "PAPER_GAMMA", "PAPER_CONTROLLER_ORDER", "PAPER_FIT_PERCENT",
     "PAPER_IDENTIFIED_ORDER_PER_COLUMN", "PAPER_REDUCED_ORDER", "PAPER_APPENDIX_A_DAMPING",
-    "PAPER_MODE_DAMPING_MEAN", "PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ", "PAPER",
+    "PAPER_MODE_DAMPING_MEAN", "PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ", "PAPER", "PAPER_FULL_STROKE_UM",
+    "PAPER_OPEN_LOOP_TRAVEL_UM", "PAPER_HYSTERESIS_INPUT_PERCENT", "PAPER_CREEP_POLE_RAD_S",
+    "PAPER_CREEP_ZERO_OVER_POLE", "PAPER_STEP_UM", "PAPER_CONTOUR_SPEED_UM_S",
     "Band", "BANDS", "MODE_REL_TOL",
     "STATIC_GAIN_REL_TOL", "CLOSURE_VIOLATION_MAX", "SMALL_STEP_TOL_NM",
 ]
+
+# --- the stage (Sec. 2) ---------------------------------------------------------
+PAPER_FULL_STROKE_UM = 87.0      # "a maximum displacement of about 87 um along each axis"
+
+# --- open loop (Sec. 3-4, Fig. 14; Appendix A) --------------------------------
+PAPER_OPEN_LOOP_TRAVEL_UM = (-10.0, 7.1, 5.4)   # X, Y, Z travel for actuator A 0 -> 1.65 V (Fig. 14)
+PAPER_HYSTERESIS_INPUT_PERCENT = 14.0          # open-loop input hysteresis (%), Fig. 14
+# the identified real pole / zero pair (creep doublet) of each column, Appendix A: poles from ... to (rad/s),
+# zero / pole ratios from ... to (-)
+PAPER_CREEP_POLE_RAD_S = (28.97, 33.11)
+PAPER_CREEP_ZERO_OVER_POLE = (1.08, 1.11)
 
 # --- identified modes (Sec. 3, Fig. 5) ---------------------------------------
 PAPER_MODES_HZ = (175.0, 179.0, 245.0, 460.0, 474.0, 740.0)
@@ -40,6 +53,10 @@ PAPER_GAMMA = 1.34
 PAPER_CONTROLLER_ORDER = 19
 # Sec. 4.1: the model-reduction uncertainty is "lower than -20 dB below 140 Hz" (Fig. 10)
 PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ = -20.0
+
+# --- the closed-loop experiments (Sec. 5) -----------------------------------------
+PAPER_STEP_UM = 2.0                  # the step of Fig. 18c (the "step_2um" metrics)
+PAPER_CONTOUR_SPEED_UM_S = 1000.0    # the contour speed of the errors quoted for Fig. 20
 
 # Figures quoted in Secs. 4-5 (units in the comment). Keys are used by the report.
 PAPER = {

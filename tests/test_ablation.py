@@ -9,7 +9,8 @@ import pytest
 from nanosim.pipeline.ablation import AblationPlant, ablation_rows, markdown_table, run_row
 from nanosim.pipeline.config import DesignConfig
 from nanosim.pipeline.design import run_design
-from nanosim.pipeline.predictions import ABLATION_JSON, is_paper_design, report_blocks
+from nanosim.pipeline.artifacts import ABLATION_JSON
+from nanosim.pipeline.predictions import is_paper_design, report_blocks
 
 MODEL = "tests/data/identified_seed0.npz"
 

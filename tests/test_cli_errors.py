@@ -33,7 +33,8 @@ def _sealed_mc(folder: Path, ctrl: Path) -> Path:
     from nanosim import experiments
     from nanosim.pipeline import mc_stats
     from nanosim.pipeline.config import MonteCarloConfig
-    from nanosim.pipeline.montecarlo import PLAN_JSON, _plan
+    from nanosim.pipeline.artifacts import MONTECARLO_JSON as PLAN_JSON
+    from nanosim.pipeline.montecarlo import _plan
     from nanosim.plant.mjcf import load_model
     from nanosim.plant.tolerances import default_tolerances
 

@@ -14,13 +14,14 @@ import argparse
 import json
 from pathlib import Path
 
+from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.ablation import ablation_rows, markdown_table, ring_mechanism, run_ablation
 
 
 def main(argv=None) -> int:
     """Parse the arguments, run the rows, write the files."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--out", required=True, help="folder for ablation.json and ablation.md")
+    p.add_argument("--out", required=True, help=f"folder for {A.ABLATION_JSON} and {A.ABLATION_MD}")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--mujoco", action="store_true", help="MuJoCo mechanics instead of the linear twin")
     p.add_argument("--fixed-controller", action="store_true",
@@ -41,8 +42,8 @@ def main(argv=None) -> int:
     rows = [r.strip() for r in a.rows.split(",")] if a.rows else None
     res = run_ablation(a.out, seed=a.seed, twin=not a.mujoco, redesign=not a.fixed_controller, rows=rows)
     out = Path(a.out)
-    (out / "ablation.json").write_text(json.dumps(res, indent=1))
-    (out / "ablation.md").write_text(markdown_table(res))
+    (out / A.ABLATION_JSON).write_text(json.dumps(res, indent=1))
+    (out / A.ABLATION_MD).write_text(markdown_table(res))
     print(markdown_table(res))
     return 0
 

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from nanosim import constants as C
 from nanosim.design.lti import as_ss, dc_gain, max_real_pole
 
 __all__ = ["DampingLoop", "damping_loop", "damped_plant"]
@@ -78,7 +79,8 @@ def _first_lightly_damped_hz(G, zeta_max: float = 0.05, f_min_hz: float = 20.0) 
     return float(w[ok].min() / (2 * np.pi))
 
 
-def damping_loop(G, zeta_added: float = 0.1, *, mode_hz: float | None = None, lowpass_hz: float = 400.0,
+def damping_loop(G, zeta_added: float = C.DEFAULT_DAMPING_ZETA, *, mode_hz: float | None = None,
+                 lowpass_hz: float = C.DEFAULT_DAMPING_LOWPASS_HZ,
                  lowpass_zeta: float = 0.7) -> DampingLoop:
     """Band-limited velocity feedback that damps the first plant modes.
 

@@ -56,9 +56,11 @@ from nanosim.design.loopresponse import (
 )
 from nanosim.design.margins import refine_mu_peak
 from nanosim.design.mu import mixed_mu_upper_bound
-from nanosim.design.uncertainty import ModalPlant
+from nanosim.design.uncertainty import STAGE_UNCERTAINTY, ModalPlant
 
 SAME_MODE_REL = 0.003
+# the default set of parametric_lft and robust_stability_mixed_mu: the stage's (no nominal delay)
+_STAGE_RANGES = STAGE_UNCERTAINTY.mu_kwargs(0)
 
 __all__ = ["SAME_MODE_REL", "ModalMerge", "merge_modes", "ParametricLFT", "MixedRobustStabilityResult",
            "parametric_lft", "mode_band_grid", "robust_stability_mixed_mu"]
@@ -303,8 +305,10 @@ def _sector(s: complex, fr: tuple, zr: tuple, dt: float):
     return lam_c, m, a, sign * b, (min(om) / (2 * math.pi), max(om) / (2 * math.pi))
 
 
-def parametric_lft(G, *, input_gain_range=(0.75, 1.0), freq_scale_range=(0.97, 1.03),
-                   damping_scale_range=(0.5, 2.0), delay_samples_range=(0, 1)) -> ParametricLFT:
+def parametric_lft(G, *, input_gain_range=_STAGE_RANGES["input_gain_range"],
+                   freq_scale_range=_STAGE_RANGES["freq_scale_range"],
+                   damping_scale_range=_STAGE_RANGES["damping_scale_range"],
+                   delay_samples_range=_STAGE_RANGES["delay_samples_range"]) -> ParametricLFT:
     """The LFT of the module docstring for a discrete plant ``G`` (``ny x nu``).
 
     Parameters
@@ -485,10 +489,11 @@ def mode_band_grid(lft: ParametricLFT, n_per_band: int = 40) -> np.ndarray:
     return np.concatenate(pts) if pts else np.zeros(0)
 
 
-def robust_stability_mixed_mu(G_nominal, K, Ky, freq_hz, *, input_gain_range=(0.75, 1.0),
-                              freq_scale_range=(0.97, 1.03), damping_scale_range=(0.5, 2.0),
-                              delay_samples_range=(0, 1), n_per_band: int = 24, merge: bool = True,
-                              refine: bool = True) -> MixedRobustStabilityResult:
+def robust_stability_mixed_mu(G_nominal, K, Ky, freq_hz, *, input_gain_range=_STAGE_RANGES["input_gain_range"],
+                              freq_scale_range=_STAGE_RANGES["freq_scale_range"],
+                              damping_scale_range=_STAGE_RANGES["damping_scale_range"],
+                              delay_samples_range=_STAGE_RANGES["delay_samples_range"], n_per_band: int = 24,
+                              merge: bool = True, refine: bool = True) -> MixedRobustStabilityResult:
     """Mixed-mu robust stability of ``u = K e + Ky y`` over the parametric set.
 
     Parameters

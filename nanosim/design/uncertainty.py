@@ -88,6 +88,9 @@ class UncertaintySet:
 
 
 STAGE_UNCERTAINTY = UncertaintySet()
+# STAGE_UNCERTAINTY as the keyword arguments of robust_stability_mu (and of nanosim.design.parametric's
+# parametric_lft and robust_stability_mixed_mu) for a loop without nominal delay: their defaults
+_STAGE_RANGES = STAGE_UNCERTAINTY.mu_kwargs(0)
 # Complex poles damped more than this, or above this frequency, are not the stage's structural modes
 # (176-738 Hz; filters, creep fits): the uncertainty set leaves them alone.
 MODE_ZETA_MAX = 0.3
@@ -333,9 +336,11 @@ class RobustStabilityResult:
         return bool(self.nominal_stable and self.mu_peak < 1.0)
 
 
-def robust_stability_mu(G_nominal, K, Ky, dt, freq_hz, *, input_gain_range=(0.75, 1.0),
-                        freq_scale_range=(0.97, 1.03), damping_scale_range=(0.5, 2.0),
-                        delay_samples_range=(0, 1), nominal_delay_samples: int = 0,
+def robust_stability_mu(G_nominal, K, Ky, dt, freq_hz, *,
+                        input_gain_range=_STAGE_RANGES["input_gain_range"],
+                        freq_scale_range=_STAGE_RANGES["freq_scale_range"],
+                        damping_scale_range=_STAGE_RANGES["damping_scale_range"],
+                        delay_samples_range=_STAGE_RANGES["delay_samples_range"], nominal_delay_samples: int = 0,
                         n_levels: int = 3, n_random: int = 24, seed: int = 0,
                         keep_dc_gain: bool = True, refine: bool = True,
                         pade_order: int = 3) -> RobustStabilityResult:

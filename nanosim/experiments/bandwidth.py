@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import identification as ident
+from nanosim.artifact_names import FIG18_BANDWIDTH_STEP
 from nanosim.design.controller import DiscreteController
 from nanosim.design.lti import crossing_hz
 from nanosim.experiments.loop import (
@@ -16,10 +17,15 @@ from nanosim.experiments.loop import (
     step_metrics,
 )
 from nanosim.experiments.registry import Experiment, register
+from nanosim.paper import PAPER_STEP_UM
 from nanosim.plant.linearize import linearize
 from nanosim.plots.experiments import fig_bandwidth
 
-__all__ = ["BandwidthResult", "bandwidth", "predicted_loop"]
+__all__ = ["BandwidthResult", "bandwidth", "predicted_loop", "PRBS_DURATION_S", "PRBS_AMPLITUDE_UM"]
+
+# The PRBS references (also the reading disturbance of nanosim.pipeline.compare.feedback_sensitivity)
+PRBS_DURATION_S = 4.0
+PRBS_AMPLITUDE_UM = 2.0
 
 
 @dataclass(frozen=True)
@@ -38,8 +44,8 @@ class BandwidthResult:
     overshoot_percent: float
 
 
-def bandwidth(factory: StageFactory, controller, seed=0, duration_s=4.0, amplitude_um=2.0,
-              step_um=2.0) -> BandwidthResult:
+def bandwidth(factory: StageFactory, controller, seed=0, duration_s=PRBS_DURATION_S, amplitude_um=PRBS_AMPLITUDE_UM,
+              step_um=PAPER_STEP_UM) -> BandwidthResult:
     """sigma(S), sigma(T) from three uncorrelated PRBS references (MIMO H1), and a 2 um step.
 
     The PRBS amplitude (2 um) drives the piezos with about the same swing as the
@@ -100,4 +106,4 @@ register(Experiment("bandwidth", run=lambda ctx: bandwidth(ctx.factory, ctx.cont
                     metrics=_metrics,
                     figure=lambda r, ctx: fig_bandwidth(r, predicted=predicted_loop(ctx.controller,
                                                                                     ctx.base_stage)),
-                    figure_name="fig18_bandwidth_step.png", order=50, cost=2))
+                    figure_name=FIG18_BANDWIDTH_STEP, order=50, cost=2))

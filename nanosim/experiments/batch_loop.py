@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from nanosim.design.controller import ControllerConfig, DiscreteController, bumpless_state
-from nanosim.experiments.loop import FS, UM_PER_V, LoopTrace
+from nanosim.experiments.loop import FS, SETTLE_S, UM_PER_V, LoopTrace
 from nanosim.plant import batch_kernel
 from nanosim.ramps import raised_cosine
 
@@ -149,7 +149,7 @@ class BatchController:
 
 
 def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle: bool = True,
-                          settle_s: float = 0.6, compiled: bool = True) -> list[LoopTrace]:
+                          settle_s: float = SETTLE_S, compiled: bool = True) -> list[LoopTrace]:
     """:func:`~nanosim.experiments.loop.run_closed_loop` on every member of a batch stage.
 
     Parameters

@@ -25,6 +25,7 @@ import numpy as np
 
 from nanosim.experiments import registry
 from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
+from nanosim.experiments.loop import SETTLE_S
 from nanosim.experiments.registry import ExperimentContext
 from nanosim import constants as C
 from nanosim.plant.batch import BatchMujocoStage, BatchTwinStage
@@ -168,7 +169,7 @@ class _StageMember:
     def run(self, u_V):
         return self._request("run", np.asarray(u_V, dtype=float))
 
-    def closed_loop(self, controller, ref_um, *, settle: bool = True, settle_s: float = 0.6):
+    def closed_loop(self, controller, ref_um, *, settle: bool = True, settle_s: float = SETTLE_S):
         """Batch hook of :func:`~nanosim.experiments.loop.run_closed_loop`."""
         if not isinstance(controller, _ControllerMember):
             raise ValueError("controller: a batch member's loop needs its batch controller (ctx.controller)")

@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nanosim.artifact_names import FIG20_CONTOURING
 from nanosim.experiments.loop import (
     FS,
     INTERPOLATION_S,
@@ -14,6 +15,7 @@ from nanosim.experiments.loop import (
     run_closed_loop,
 )
 from nanosim.experiments.registry import Experiment, register
+from nanosim.paper import PAPER_CONTOUR_SPEED_UM_S
 from nanosim.plots.experiments import fig_contouring
 
 __all__ = ["ContourCase", "contour_reference", "contouring"]
@@ -44,7 +46,8 @@ def contour_reference(speed_um_s, corner_um=20.0, fs=FS, dwell_s=0.02, smoothing
     return interpolate(ref, smoothing_s, fs)
 
 
-def contouring(factory: StageFactory, controller, seed=0, speeds_um_s=(10, 30, 100, 300, 1000)) -> list:
+def contouring(factory: StageFactory, controller, seed=0,
+               speeds_um_s=(10, 30, 100, 300, PAPER_CONTOUR_SPEED_UM_S)) -> list:
     """Run the contour at each speed (um/s); returns a list of :class:`ContourCase`."""
     cases = []
     for v in speeds_um_s:
@@ -67,4 +70,4 @@ def _metrics(cases) -> dict:
 
 register(Experiment("contouring", run=lambda ctx: contouring(ctx.factory, ctx.controller, seed=ctx.seed),
                     metrics=_metrics, figure=lambda r, ctx: fig_contouring(r),
-                    figure_name="fig20_contouring.png", order=70, cost=6))
+                    figure_name=FIG20_CONTOURING, order=70, cost=6))

@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nanosim.artifact_names import FIG15_CREEP
 from nanosim.experiments.loop import FS, StageFactory, run_closed_loop
 from nanosim.experiments.registry import Experiment, register
 from nanosim.plots.experiments import fig_creep
@@ -56,5 +57,5 @@ def _metrics(r: CreepResult) -> dict:
 
 register(Experiment("creep", run=lambda ctx: creep(ctx.factory, ctx.controller, ctx.static_gain_um_per_V,
                                                    seed=ctx.seed),
-                    metrics=_metrics, figure=lambda r, ctx: fig_creep(r), figure_name="fig15_creep.png",
+                    metrics=_metrics, figure=lambda r, ctx: fig_creep(r), figure_name=FIG15_CREEP,
                     order=20, cost=7))

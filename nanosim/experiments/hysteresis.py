@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nanosim.artifact_names import FIG14_HYSTERESIS
 from nanosim.experiments.loop import (
     FS,
     LoopTrace,
@@ -93,5 +94,5 @@ def _metrics(r: HysteresisResult) -> dict:
 
 
 register(Experiment("hysteresis", run=lambda ctx: hysteresis(ctx.factory, ctx.controller, seed=ctx.seed),
-                    metrics=_metrics, figure=lambda r, ctx: fig_hysteresis(r), figure_name="fig14_hysteresis.png",
+                    metrics=_metrics, figure=lambda r, ctx: fig_hysteresis(r), figure_name=FIG14_HYSTERESIS,
                     order=10, cost=3))

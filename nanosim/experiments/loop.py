@@ -17,10 +17,12 @@ from nanosim.design.controller import DiscreteController
 from nanosim.ramps import raised_cosine
 
 __all__ = ["FS", "UM_PER_V", "LoopTrace", "run_closed_loop", "StageFactory", "plateaus", "step_metrics",
-           "INTERPOLATION_S", "interpolate"]
+           "INTERPOLATION_S", "interpolate", "SETTLE_S"]
 
 FS = C.CONTROL_RATE_HZ
 UM_PER_V = C.SENSOR_UM_PER_V
+# Duration of the move from home to the first reference point before a closed-loop record [s].
+SETTLE_S = 0.6
 
 
 @dataclass(frozen=True)
@@ -41,7 +43,7 @@ class LoopTrace:
 
 
 def run_closed_loop(stage, controller: DiscreteController, ref_um: np.ndarray, *, settle: bool = True,
-                    settle_s: float = 0.6) -> LoopTrace:
+                    settle_s: float = SETTLE_S) -> LoopTrace:
     """Run the loop on ``ref_um`` (N, 3); with ``settle`` first move to ref_um[0] from home.
 
     A stage that runs closed loops itself (a member of a batch,

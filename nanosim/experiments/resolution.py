@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import signal
 
+from nanosim.artifact_names import FIG16_RESOLUTION
 from nanosim.experiments.loop import FS, StageFactory, run_closed_loop
 from nanosim.experiments.registry import Experiment, register
 from nanosim.plant.floor import FloorConfig
@@ -138,5 +139,5 @@ def _metrics(r: ResolutionResult) -> dict:
 
 
 register(Experiment("resolution", run=lambda ctx: resolution(ctx.factory, ctx.controller, seed=ctx.seed),
-                    metrics=_metrics, figure=lambda r, ctx: fig_resolution(r), figure_name="fig16_resolution.png",
+                    metrics=_metrics, figure=lambda r, ctx: fig_resolution(r), figure_name=FIG16_RESOLUTION,
                     order=30, cost=5))

@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nanosim.artifact_names import FIG17_SMALL_STEPS
 from nanosim.experiments.loop import (
     FS,
     LoopTrace,
@@ -48,4 +49,4 @@ def _metrics(r: SmallStepsResult) -> dict:
 
 register(Experiment("small_steps", run=lambda ctx: small_steps(ctx.factory, ctx.controller, seed=ctx.seed),
                     metrics=_metrics, figure=lambda r, ctx: fig_small_steps(r),
-                    figure_name="fig17_small_steps.png", order=40, cost=1))
+                    figure_name=FIG17_SMALL_STEPS, order=40, cost=1))

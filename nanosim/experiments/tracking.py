@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
+from nanosim.artifact_names import FIG19_TRACKING
 from nanosim.experiments.loop import (
     FS,
     LoopTrace,
@@ -66,5 +67,5 @@ def _metrics(cases) -> dict:
 
 
 register(Experiment("tracking", run=lambda ctx: tracking(ctx.factory, ctx.controller, seed=ctx.seed),
-                    metrics=_metrics, figure=lambda r, ctx: fig_tracking(r), figure_name="fig19_tracking.png",
+                    metrics=_metrics, figure=lambda r, ctx: fig_tracking(r), figure_name=FIG19_TRACKING,
                     order=60, cost=4))

@@ -50,7 +50,8 @@ from nanosim.experiments.contouring import contouring
 from nanosim.experiments.resolution import resolution
 from nanosim.experiments.sysid import IdentifySettings, identify_stage
 from nanosim.fileio import write_npz
-from nanosim.paper import PAPER
+from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S, PAPER_STEP_UM
+from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import DesignConfig
 from nanosim.pipeline.design import run_design
 from nanosim.pipeline.identify import save_model
@@ -162,7 +163,7 @@ def _design(plant: AblationPlant, row: AblationRow, seed: int, work: Path) -> Pa
     res = identify_stage(IdentifySettings(seed=seed, ideal=row.identify_ideal, shared_poles=False), model=plant.model,
                          config=cfg,
                          runner=plant.runner())
-    npz = save_model(work / "model.npz", res)
+    npz = save_model(work / A.MODEL_NPZ, res)
     if row.model_freq_scale != 1.0:
         # every pole x s, same DC gain: G_s(s) = C (s I - s A)^-1 s B + D = G(s / s_)
         import control as ct
@@ -173,15 +174,15 @@ def _design(plant: AblationPlant, row: AblationRow, seed: int, work: Path) -> Pa
         write_npz(npz, A=sys_c.A, B=sys_c.B, C=sys_c.C, D=sys_c.D, Ad=sys_d.A, Bd=sys_d.B, Cd=sys_d.C, Dd=sys_d.D,
                   dt=res.sysd.dt)
     tw = linearize(plant.base).sys_V
-    twin_npz = write_npz(work / "twin.npz", A=tw.A, B=tw.B, C=tw.C, D=tw.D)
+    twin_npz = write_npz(work / A.TWIN_NPZ, A=tw.A, B=tw.B, C=tw.C, D=tw.D)
     try:
         run_design(npz, work, DesignConfig.paper(), twin=str(twin_npz))
     except ValueError:
         # the controller is exported before the robustness analysis; a failure there (e.g. the
         # uncertainty set's modal perturbation) does not concern this table
-        if not (work / "controller.npz").is_file():
+        if not (work / A.CONTROLLER_NPZ).is_file():
             raise
-    return work / "controller.npz"
+    return work / A.CONTROLLER_NPZ
 
 
 def run_row(plant: AblationPlant, row: AblationRow, controller_npz, seed: int = 0) -> dict:
@@ -191,7 +192,7 @@ def run_row(plant: AblationPlant, row: AblationRow, controller_npz, seed: int = 
     t0 = time.perf_counter()
     bw = bandwidth(fac, DiscreteController(ctrl.config), seed=seed)
     res = resolution(fac, DiscreteController(ctrl.config), seed=seed, budget=False)
-    cont = contouring(fac, DiscreteController(ctrl.config), seed=seed, speeds_um_s=(1000,))[0]
+    cont = contouring(fac, DiscreteController(ctrl.config), seed=seed, speeds_um_s=(PAPER_CONTOUR_SPEED_UM_S,))[0]
     return {"settling_ms": bw.settling_ms, "overshoot_percent": bw.overshoot_percent, "rise_ms": bw.rise_ms,
             "bandwidth_S_hz": bw.bandwidth_S_hz, "sigma_closed_nm": res.sigma_nm["closed_loop"],
             "sigma_closed_table_nm": res.sigma_table_nm["closed_loop"], "sigma_open_nm": res.sigma_nm["open_loop"],
@@ -240,7 +241,7 @@ def run_ablation(out_dir, *, seed: int = 0, twin: bool = True, redesign: bool = 
                 m["error"] = f"{type(exc).__name__}: {exc}"
             m.update(name=row.name, change=row.change, seconds=round(time.perf_counter() - t0, 1))
             result["rows"].append(m)
-            (out / "ablation.partial.json").write_text(json.dumps(result, indent=1))
+            (out / A.ABLATION_PARTIAL_JSON).write_text(json.dumps(result, indent=1))
             if bar is not None:
                 bar.update(1)
             log(f"{row.name:22s} settle {m['settling_ms']:7.1f} ms  sigma {m['sigma_closed_nm']:5.2f} nm "
@@ -251,7 +252,8 @@ def run_ablation(out_dir, *, seed: int = 0, twin: bool = True, redesign: bool = 
     return result
 
 
-def ring_mechanism(controller_npz, *, seed: int = 1, twin: bool = True, mjcf=None, step_um: float = 2.0) -> list:
+def ring_mechanism(controller_npz, *, seed: int = 1, twin: bool = True, mjcf=None,
+                   step_um: float = PAPER_STEP_UM) -> list:
     """The step with noise off, with and without creep and a pre-step Z retraction (see the module docstring).
 
     Returns rows ``{case, settling_ms, overshoot_percent, rms_after_20ms_nm}``.

@@ -23,7 +23,16 @@ from nanosim.plant.modes import modal_analysis
 from nanosim.plant.stage import Stage, StageConfig
 from nanosim.plant.twin import TwinStage
 
-__all__ = ["make_factory", "run_characterize", "experiment_task", "write_task_metrics"]
+__all__ = ["make_factory", "run_characterize", "experiment_task", "write_task_metrics", "METRICS_UNITS",
+           "plant_description"]
+
+# metrics.json's "units": the unit suffixes of its keys
+METRICS_UNITS = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
+
+
+def plant_description(twin: bool) -> str:
+    """The ``plant`` entry of ``metrics.json`` (and of ``scorecard.json``)."""
+    return "linear twin (same electromechanics)" if twin else "MuJoCo stage, every effect on"
 
 
 def make_factory(twin: bool, mjcf=None, config: StageConfig | None = None):
@@ -146,9 +155,9 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
         if exp.figure is not None and exp.figure_name:
             save_figure(exp.figure(results[name], context()), out / exp.figure_name)
     metrics["experiment_seconds"] = timing
-    metrics["plant"] = "linear twin (same electromechanics)" if cfg.twin else "MuJoCo stage, every effect on"
+    metrics["plant"] = plant_description(cfg.twin)
     metrics["seed"] = cfg.seed
-    metrics["units"] = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
+    metrics["units"] = dict(METRICS_UNITS)
     write_json(out / A.METRICS_JSON, metrics)
     return metrics
 
@@ -205,8 +214,8 @@ def write_task_metrics(out_dir, parts, seed: int, twin: bool = False) -> dict:
             raise ValueError(f"parts: expected a result for every registered experiment, {name!r} is missing")
         metrics.update(parts[name][0])
     metrics["experiment_seconds"] = {name: parts[name][1] for name in experiments.load_builtin()}
-    metrics["plant"] = "linear twin (same electromechanics)" if twin else "MuJoCo stage, every effect on"
+    metrics["plant"] = plant_description(twin)
     metrics["seed"] = seed
-    metrics["units"] = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
+    metrics["units"] = dict(METRICS_UNITS)
     write_json(Path(out_dir) / A.METRICS_JSON, metrics)
     return metrics

@@ -32,7 +32,8 @@ from nanosim import constants as C
 from nanosim import experiments
 from nanosim.design.architectures.protocol import ControllerSpec, load_controller
 from nanosim.design.lti import crossing_hz
-from nanosim.experiments.loop import FS, UM_PER_V, run_closed_loop
+from nanosim.experiments.bandwidth import PRBS_AMPLITUDE_UM, PRBS_DURATION_S
+from nanosim.experiments.loop import FS, SETTLE_S, UM_PER_V, run_closed_loop
 from nanosim.experiments.registry import ExperimentContext
 from nanosim.fileio import save_figure, write_json, write_npz
 from nanosim.pipeline import artifacts as A
@@ -84,8 +85,8 @@ class FeedbackSensitivity:
     bandwidth_S_hz: float
 
 
-def feedback_sensitivity(factory, controller, seed: int = 0, duration_s: float = 4.0,
-                         amplitude_um: float = 2.0, settle_s: float = 0.6) -> FeedbackSensitivity:
+def feedback_sensitivity(factory, controller, seed: int = 0, duration_s: float = PRBS_DURATION_S,
+                         amplitude_um: float = PRBS_AMPLITUDE_UM, settle_s: float = SETTLE_S) -> FeedbackSensitivity:
     """Output sensitivity ``S_o = (I + G Kfb)^-1`` of the loop as run, measured.
 
     With ``r = 0`` and a disturbance ``d`` added to the reading the controller sees
@@ -298,7 +299,7 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
             res = _run_suite(spec, names, factory, base, G0, seed, workers)
             m = _metrics(res, names)
             m["run_seconds"] = round(time.perf_counter() - t, 2)
-            write_json(folder / f"seed{seed}" / A.METRICS_JSON, m)
+            write_json(folder / A.compare_seed_dir(seed) / A.METRICS_JSON, m)
             per[spec.name][seed] = m
             if seed == config.seeds[0]:
                 first_results[spec.name] = res

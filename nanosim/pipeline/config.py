@@ -9,18 +9,15 @@ import math
 import os
 from dataclasses import dataclass, field, replace
 
+from nanosim.constants import DEFAULT_DAMPING_LOWPASS_HZ, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER
 from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_REDUCED_ORDER
 
 __all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConfig", "MonteCarloConfig",
            "SweepConfig", "CompareConfig", "DEFAULT_REDUCED_ORDER", "DEFAULT_DAMPING_ZETA",
            "DEFAULT_DAMPING_LOWPASS_HZ", "DEFAULT_ARCHITECTURE", "DESIGN_ARCHITECTURES"]
 
-# 14 states: the Hankel singular values fall 27x after state 12, and states 13-14 (the
-# 1 s creep stage) move the full-model S bandwidth from 27.9 to 29.7 Hz (README, "Controller").
-DEFAULT_REDUCED_ORDER = 14
-# Damping ratio the inner active-damping loop adds to the first mode (0 = no damping loop).
-DEFAULT_DAMPING_ZETA = 0.1
-DEFAULT_DAMPING_LOWPASS_HZ = 400.0
+# DEFAULT_REDUCED_ORDER, DEFAULT_DAMPING_ZETA, DEFAULT_DAMPING_LOWPASS_HZ: defined in nanosim.constants (the
+# design layer uses them too), re-exported here
 # the exported controller of `nanosim design` (#13, chosen by the bench's scorecard rule): "lqg" is the bench
 # design nanosim.design.architectures.lqg; "hinf" the H-infinity design these settings describe (the paper's
 # with --paper-design, else hinf-damped)

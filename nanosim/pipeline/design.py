@@ -183,8 +183,8 @@ def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNC
     fileio.write_json(out / A.ROBUSTNESS_JSON, doc)
     labels = {k: a.label for k, a in analyses.items()}
     by_label = {labels[k]: a for k, a in analyses.items()}
-    fileio.save_figure(plot_loop_singular_values(by_label), out / A.figure("fig23_robustness_sigma.png").name)
-    fileio.save_figure(plot_disk_margins(by_label), out / A.figure("fig24_robustness_disk_margins.png").name)
+    fileio.save_figure(plot_loop_singular_values(by_label), out / A.FIG23_ROBUSTNESS_SIGMA)
+    fileio.save_figure(plot_disk_margins(by_label), out / A.FIG24_ROBUSTNESS_DISK_MARGINS)
     return doc
 
 
@@ -412,14 +412,14 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
 
     say("writing figures")
     figs = {
-        "fig08_hankel_sv.png": plot_hankel(red),
-        "fig09_reduction_bode.png": plot_reduction_bode(red),
-        "fig10_uncertainty.png": plot_uncertainty(red),
-        "fig11b_weights.png": plot_weights(W),
-        "fig12_sensitivity.png": plot_sensitivity(d),
-        "fig18_T_KS.png": plot_T_KS(d),
-        "fig21_closed_loop_bode.png": plot_closed_loop_bode(d),
-        "fig22_controller_bode.png": plot_controller_bode(d, disc),
+        A.FIG08_HANKEL_SV: plot_hankel(red),
+        A.FIG09_REDUCTION_BODE: plot_reduction_bode(red),
+        A.FIG10_UNCERTAINTY: plot_uncertainty(red),
+        A.FIG11B_WEIGHTS: plot_weights(W),
+        A.FIG12_SENSITIVITY: plot_sensitivity(d),
+        A.FIG18_T_KS: plot_T_KS(d),
+        A.FIG21_CLOSED_LOOP_BODE: plot_closed_loop_bode(d),
+        A.FIG22_CONTROLLER_BODE: plot_controller_bode(d, disc),
     }
     for name, fig in figs.items():
         fileio.save_figure(fig, out / A.figure(name).name)

@@ -142,18 +142,18 @@ def run_identify(out_dir, config: IdentifyConfig | None = None, *, model=None, t
             "fit_percent_second": results[1].fit_percent.round(2).tolist(),
         }
     write_json(out / A.IDENTIFY_JSON, identify_json(main, extra))
-    save_figure(figure_time_fit(main), out / "fig04_time_domain_fit.png")
+    save_figure(figure_time_fit(main), out / A.FIG04_TIME_DOMAIN_FIT)
     models = [main.sysd] + ([twin.sysd_V] if twin is not None else [])
     labels = ["identified (subspace)"] + (["linear twin (MuJoCo)"] if twin is not None else [])
     save_figure(figure_bode_grid(models, labels, "Identified 3x3 model (controller V to sensor V)",
                                  styles=[{}, {"ls": "--", "lw": 0.8}]),
-                out / "fig05_identified_frequency_response.png")
-    save_figure(figure_parametric_vs_h1(main), out / "fig06_parametric_vs_h1.png")
+                out / A.FIG05_IDENTIFIED_FREQUENCY_RESPONSE)
+    save_figure(figure_parametric_vs_h1(main), out / A.FIG06_PARAMETRIC_VS_H1)
     if len(results) > 1:
         save_figure(figure_bode_grid([results[0].sysd, results[1].sysd],
                                      [f"{ops[0]:g} V offset", f"{ops[1]:g} V offset"],
                                      "Models identified at two operating points (piezo volts)",
                                      fmin=0.3, styles=[{}, {"ls": "--"}]),
-                    out / "fig07_operating_points.png")
-    save_figure(figure_singular_values(main), out / "singular_values.png")
+                    out / A.FIG07_OPERATING_POINTS)
+    save_figure(figure_singular_values(main), out / A.FIG_SINGULAR_VALUES)
     return main

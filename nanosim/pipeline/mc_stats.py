@@ -13,22 +13,31 @@ import numpy as np
 from scipy import stats
 
 from nanosim import constants as C
-from nanosim.paper import BANDS
+from nanosim.paper import BANDS, PAPER_CONTOUR_SPEED_UM_S, PAPER_STEP_UM
 
 __all__ = ["flatten_metrics", "unit_of", "default_spec", "load_spec", "check_spec", "evaluate_spec", "yield_table",
            "worst_cases", "sensitivity", "compare_crosscheck", "CROSSCHECK_METRICS", "CROSSCHECK_RESOLUTION",
-           "CROSSCHECK_REL_TOL", "wilson_interval"]
+           "CROSSCHECK_REL_TOL", "CONTOUR_MEAN_METRIC", "wilson_interval"]
 
 _UNITS = (("_hz", "Hz"), ("_nm", "nm"), ("_um", "um"), ("_ms", "ms"), ("_percent", "%"), ("_deg", "deg"),
           ("_s", "s"), ("_db", "dB"), ("_um_per_V", "um/V"))
 _SKIP = {"experiment_seconds", "errors", "units", "plant", "seed"}
+
+
+def _speed_label(speed_um_s) -> str:
+    """The key of one contouring case in a flat metric name: ``1000um_s``."""
+    return f"{float(speed_um_s):g}um_s"
+
+
+# The contour error at the paper's speed, as a flat metric.
+CONTOUR_MEAN_METRIC = f"contouring.{_speed_label(PAPER_CONTOUR_SPEED_UM_S)}.mean_error_nm"
 
 # The MuJoCo-vs-twin quantities of the pipeline report.
 CROSSCHECK_METRICS = ("bandwidth_S_hz", "bandwidth_T_hz", "step_2um.overshoot_percent", "step_2um.rise_ms",
                       "resolution_sigma_nm.closed_loop", "hysteresis.open_loop_percent",
                       "hysteresis.closed_loop_nm", "creep.open_loop_drift_nm", "creep.closed_loop_drift_nm",
                       "tracking.triangle_5hz.rms_error_nm", "tracking.triangle_40hz.rms_error_nm",
-                      "contouring.1000um_s.mean_error_nm")
+                      CONTOUR_MEAN_METRIC)
 
 CROSSCHECK_REL_TOL = 0.05
 # The quantum in which a metric is read off the gauge (absolute, the metric's unit): twin and MuJoCo agree when
@@ -38,7 +47,7 @@ CROSSCHECK_REL_TOL = 0.05
 # loop that rejects both, far below one count, fail a relative comparison on noise alone. Averaged metrics
 # (contour mean error, sigma) and the bandwidths are compared relatively only.
 CROSSCHECK_RESOLUTION = {
-    "step_2um.overshoot_percent": 100.0 * C.ADC_LSB_NM / 2000.0,
+    "step_2um.overshoot_percent": 100.0 * C.ADC_LSB_NM / (1e3 * PAPER_STEP_UM),
     "step_2um.rise_ms": 1e3 * C.CONTROL_PERIOD_S,
     "hysteresis.closed_loop_nm": C.ADC_LSB_NM,
     "creep.closed_loop_drift_nm": C.ADC_LSB_NM,
@@ -61,7 +70,7 @@ def _label(item: dict) -> str:
     if "freq_hz" in item:
         parts.append(f"{float(item['freq_hz']):g}hz")
     if "speed_um_s" in item:
-        parts.append(f"{float(item['speed_um_s']):g}um_s")
+        parts.append(_speed_label(item["speed_um_s"]))
     return "_".join(parts)
 
 
@@ -126,7 +135,7 @@ def default_spec() -> dict:
                 lim("resolution_sigma_nm.closed_loop", "sigma_closed_nm", "closed-loop resolution sigma"),
                 lim("hysteresis.closed_loop_nm", "hysteresis_closed_nm", "closed-loop hysteresis"),
                 lim("creep.closed_loop_drift_nm", "creep_closed_nm", "closed-loop creep drift"),
-                lim("contouring.1000um_s.mean_error_nm", "contour_mean_nm", "contour error at 1000 um/s"),
+                lim(CONTOUR_MEAN_METRIC, "contour_mean_nm", f"contour error at {PAPER_CONTOUR_SPEED_UM_S:g} um/s"),
             ]}
 
 

@@ -41,21 +41,15 @@ from pathlib import Path
 import numpy as np
 
 from nanosim.fileio import save_figure, write_json, write_text
+from nanosim.pipeline import artifacts as A
 from nanosim.pipeline import mc_stats
 from nanosim.pipeline.config import MonteCarloConfig
-from nanosim.pipeline.runfolder import RunFolderError, check_writable, sha256_file, write_manifest, writer_lock
+from nanosim.pipeline.runfolder import (MANIFEST_JSON, RunFolderError, check_writable, sha256_file, write_manifest,
+                                        writer_lock)
 from nanosim.pipeline.scaleout import check_scheduler, open_executor, run_tasks
 
 __all__ = ["run_montecarlo", "run_chunk", "sample_plants", "summarize", "report_markdown"]
 
-SAMPLES_DIR = "samples"
-CROSSCHECK_DIR = "crosscheck"
-PLAN_JSON = "montecarlo.json"
-SUMMARY_JSON = "summary.json"
-FIG_HIST = "fig_mc_histograms.png"
-FIG_SENS = "fig_mc_sensitivity.png"
-FIG_CROSS = "fig_mc_crosscheck.png"
-REPORT_MD = "report.md"
 SENSITIVITY_EXTRA = ("mode_1_hz", "xy_split_percent", "disk_margin_alpha")
 
 
@@ -142,7 +136,7 @@ def run_chunk(plan: dict, indices: list, engine: str, sink) -> list[dict]:
 
 # ------------------------------------------------------------------------------ driver side
 def _sample_path(out: Path, sub: str, i: int) -> Path:
-    return out / sub / f"sample_{i:05d}.json"
+    return out / sub / A.mc_sample_json(i)
 
 
 def _plan(controller_path: Path, s: MonteCarloConfig, names, tm_dict) -> dict:
@@ -163,7 +157,7 @@ def _chunks(indices: list, size: int) -> list:
 
 def _check_out(out: Path, plan: dict) -> None:
     """Refuse an ``out`` holding another Monte Carlo or files that are not one (reads only)."""
-    prev = out / PLAN_JSON
+    prev = out / A.MONTECARLO_JSON
     if prev.is_file():
         try:
             old = json.loads(prev.read_text()).get("identity")
@@ -211,7 +205,7 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
     plan = _plan(controller_path, settings, names, tm.to_dict())
     _check_out(out, plan)
     n_cross = min(settings.crosscheck, settings.n)
-    phases = ((SAMPLES_DIR, "twin", settings.n), (CROSSCHECK_DIR, "mujoco", n_cross))
+    phases = ((A.MC_SAMPLES_DIR, "twin", settings.n), (A.MC_CROSSCHECK_DIR, "mujoco", n_cross))
 
     def todo_of(sub, count):
         return [i for i in range(count) if not _sample_path(out, sub, i).is_file()]
@@ -227,12 +221,12 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
         out.mkdir(exist_ok=True)
         # the work starts: a folder being changed is no longer sealed (a rerun resumes it, skipping the
         # finished samples, and seals it again)
-        (out / "manifest.json").unlink(missing_ok=True)
-        write_json(out / PLAN_JSON, {"identity": plan["identity"], "n": settings.n, "mjcf": plan["mjcf"],
+        (out / MANIFEST_JSON).unlink(missing_ok=True)
+        write_json(out / A.MONTECARLO_JSON, {"identity": plan["identity"], "n": settings.n, "mjcf": plan["mjcf"],
                                      "experiments": names, "engine": "linear twin, every effect on",
                                      "crosscheck_engine": "MuJoCo, every effect on"})
-        write_json(out / "tolerances.json", tm.to_dict())
-        write_json(out / "spec.json", spec)
+        write_json(out / A.TOLERANCES_JSON, tm.to_dict())
+        write_json(out / A.SPEC_JSON, spec)
         timings = {}
         for sub, engine, count in phases:
             todo = todo_of(sub, count)
@@ -259,8 +253,8 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
         summary = summarize(out, settings, spec, names, tm)
         summary["timings"] = timings
         summary["wall_seconds"] = round(time.perf_counter() - t_start, 2)
-        write_json(out / SUMMARY_JSON, summary)
-        write_text(out / REPORT_MD, report_markdown(summary))
+        write_json(out / A.SUMMARY_JSON, summary)
+        write_text(out / A.REPORT_MD, report_markdown(summary))
         write_manifest(out, seed=settings.seed)
     return summary
 
@@ -283,7 +277,7 @@ def summarize(out: Path, settings: MonteCarloConfig, spec: dict, names, tm) -> d
     """Yield, worst cases, sensitivity and cross-check from the sample files; writes the figures."""
     from nanosim.plots.montecarlo import fig_crosscheck, fig_histograms, fig_sensitivity
 
-    recs = _load(out, SAMPLES_DIR, settings.n)
+    recs = _load(out, A.MC_SAMPLES_DIR, settings.n)
     idx = [r["index"] for r in recs]
     flats = [_flat(r) for r in recs]
     table = mc_stats.yield_table(flats, spec)
@@ -293,7 +287,7 @@ def summarize(out: Path, settings: MonteCarloConfig, spec: dict, names, tm) -> d
     sens_metrics = [lim["metric"] for lim in spec["limits"] if lim["metric"] != "closed_loop_stable"]
     sens = mc_stats.sensitivity(X, list(tm.names), groups, flats, sens_metrics + list(SENSITIVITY_EXTRA))
     cross = []
-    for rec in _load(out, CROSSCHECK_DIR, min(settings.crosscheck, settings.n)):
+    for rec in _load(out, A.MC_CROSSCHECK_DIR, min(settings.crosscheck, settings.n)):
         twin = next((f for r, f in zip(recs, flats) if r["index"] == rec["index"]), None)
         if twin is not None:
             c = mc_stats.compare_crosscheck(twin, mc_stats.flatten_metrics(rec["metrics"]))
@@ -311,11 +305,11 @@ def summarize(out: Path, settings: MonteCarloConfig, spec: dict, names, tm) -> d
                                               default=None),
                "errors": errors}
     if recs:
-        save_figure(fig_histograms(flats, spec), out / FIG_HIST)
+        save_figure(fig_histograms(flats, spec), out / A.FIG_MC_HISTOGRAMS)
         if sens:
-            save_figure(fig_sensitivity(sens), out / FIG_SENS)
+            save_figure(fig_sensitivity(sens), out / A.FIG_MC_SENSITIVITY)
         if cross:
-            save_figure(fig_crosscheck(cross), out / FIG_CROSS)
+            save_figure(fig_crosscheck(cross, 100 * mc_stats.CROSSCHECK_REL_TOL), out / A.FIG_MC_CROSSCHECK)
     return summary
 
 
@@ -328,9 +322,9 @@ def _fmt(v) -> str:
 def report_markdown(summary: dict) -> str:
     """``report.md`` of a Monte Carlo folder."""
     lines = [f"# Monte Carlo: {summary['n']} fabricated stages (seed {summary['seed']})", "",
-             "Tolerances: `tolerances.json` (per-notch thickness and radius, link width, target mass, piezo gain;"
+             f"Tolerances: `{A.TOLERANCES_JSON}` (per-notch thickness and radius, link width, target mass, piezo gain;"
              " each with its distribution and source). Experiments on each sample's linear twin, every effect on.",
-             "", "## Yield against the spec (`spec.json`)", "",
+             "", f"## Yield against the spec (`{A.SPEC_JSON}`)", "",
              "| limit | metric | bound | unit | pass | yield | 95 % CI | median | worst |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in summary["yield"]:
@@ -366,9 +360,9 @@ def report_markdown(summary: dict) -> str:
             lines.append(f"| #{c['sample']} | {sum(r['ok'] for r in c['metrics'].values())}/{len(c['metrics'])} | "
                          f"{worst} |")
     lines += ["", "## Figures", ""]
-    for name, fig, present in (("histograms", FIG_HIST, summary["n"] > 0), ("sensitivity", FIG_SENS,
-                                                                             bool(summary["sensitivity"])),
-                               ("cross-check", FIG_CROSS, bool(summary["crosscheck"]))):
+    for name, fig, present in (("histograms", A.FIG_MC_HISTOGRAMS, summary["n"] > 0),
+                               ("sensitivity", A.FIG_MC_SENSITIVITY, bool(summary["sensitivity"])),
+                               ("cross-check", A.FIG_MC_CROSSCHECK, bool(summary["crosscheck"]))):
         if present:
             lines += [f"![{name}]({fig})", ""]
     if summary["errors"]:

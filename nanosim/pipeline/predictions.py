@@ -15,17 +15,17 @@ from pathlib import Path
 
 import numpy as np
 
-from nanosim.paper import PAPER, PAPER_REDUCED_ORDER
+from nanosim.paper import (PAPER, PAPER_CONTOUR_SPEED_UM_S, PAPER_CREEP_POLE_RAD_S, PAPER_CREEP_ZERO_OVER_POLE,
+                           PAPER_HYSTERESIS_INPUT_PERCENT, PAPER_OPEN_LOOP_TRAVEL_UM, PAPER_REDUCED_ORDER)
 from nanosim.pipeline import artifacts as A
 
 __all__ = ["creep_doublets", "operating_point_difference", "validation_rows", "SEED_METRICS", "seed_summary",
-           "SEEDS_JSON", "ABLATION_JSON", "report_blocks", "is_paper_design"]
+           "report_blocks", "is_paper_design"]
 
-SEEDS_JSON = "paper_design_seeds.json"
-ABLATION_JSON = "ablation.json"
-# Paper values (Sec. 3-5): Sec. 5's from nanosim.paper; the Sec. 3-4 ones only this table uses.
-_PAPER = {"travel_um": [-10.0, 7.1, 5.4], "hyst_out_pct": PAPER["hyst_o"], "hyst_in_pct": 14.0,
-          "sigma_open_nm": PAPER["sig_o"], "creep_pole_rad_s": (28.97, 33.11), "creep_zero_over_pole": (1.08, 1.11),
+# Paper values (Sec. 3-5), all from nanosim.paper, under this table's keys.
+_PAPER = {"travel_um": list(PAPER_OPEN_LOOP_TRAVEL_UM), "hyst_out_pct": PAPER["hyst_o"],
+          "hyst_in_pct": PAPER_HYSTERESIS_INPUT_PERCENT, "sigma_open_nm": PAPER["sig_o"],
+          "creep_pole_rad_s": PAPER_CREEP_POLE_RAD_S, "creep_zero_over_pole": PAPER_CREEP_ZERO_OVER_POLE,
           "settling_ms": PAPER["settle"], "sigma_closed_nm": PAPER["sig_c"], "contour_mean_nm": PAPER["contour_mean"],
           "bandwidth_S_hz": PAPER["bwS"]}
 SEED_METRICS = {"settling_ms": ("step_2um", "settling_ms"), "overshoot_percent": ("step_2um", "overshoot_percent"),
@@ -144,7 +144,7 @@ def validation_rows(run) -> list[dict]:
         row(q, _PAPER[key], _get(met, *SEED_METRICS[key]), unit, "predicted", who)
     row("closed-loop sigma, true table position", None, _get(met, "resolution_sigma_table_nm", "closed_loop"), "nm",
         "predicted", "not measurable on the bench")
-    cont = [c for c in met.get("contouring", []) if c.get("speed_um_s") == 1000]
+    cont = [c for c in met.get("contouring", []) if c.get("speed_um_s") == PAPER_CONTOUR_SPEED_UM_S]
     row("contour error mean at 1000 um/s", _PAPER["contour_mean_nm"], cont[0]["mean_error_nm"] if cont else None,
         "nm", "predicted", who)
     return rows
@@ -162,7 +162,7 @@ def seed_summary(run_dirs) -> dict:
     for d in run_dirs:
         met = _load_json(Path(d) / A.METRICS_JSON)
         vals = {k: _get(met, *path) for k, path in SEED_METRICS.items()}
-        cont = [c for c in met.get("contouring", []) if c.get("speed_um_s") == 1000]
+        cont = [c for c in met.get("contouring", []) if c.get("speed_um_s") == PAPER_CONTOUR_SPEED_UM_S]
         vals["contour_mean_nm_1000"] = cont[0]["mean_error_nm"] if cont else None
         per[str(d)] = vals
     keys = list(SEED_METRICS) + ["contour_mean_nm_1000"]
@@ -193,13 +193,13 @@ def report_blocks(run) -> list:
            ("table", ["quantity", "paper", "simulation", "unit", "status", "note"],
             [[r["quantity"], _fmt(r["paper"]), _fmt(r["simulation"]), r["unit"], r["status"], r["note"]]
              for r in rows], None)]
-    seeds = _load_json(run / SEEDS_JSON)
+    seeds = _load_json(run / A.PAPER_DESIGN_SEEDS_JSON)
     if seeds.get("stats"):
         out += [("h", 2, "The paper's controller on several seeds"),
                 ("table", ["quantity", "mean", "min", "max", "seeds"],
                  [[k, _fmt(s["mean"]), _fmt(s["min"]), _fmt(s["max"]), str(s["n"])]
                   for k, s in seeds["stats"].items()], None)]
-    abl = _load_json(run / ABLATION_JSON)
+    abl = _load_json(run / A.ABLATION_JSON)
     if abl.get("rows"):
         t = abl.get("targets", {})
         out += [("h", 2, "Ablation of the paper's controller"),

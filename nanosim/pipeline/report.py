@@ -11,7 +11,7 @@ import numpy as np
 from nanosim import constants as C
 from nanosim.fileio import write_text
 from nanosim import paper as P
-from nanosim.paper import PAPER
+from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S
 from nanosim.pipeline import artifacts as A
 
 __all__ = ["design_warnings", "pass_count", "write_report"]
@@ -124,7 +124,8 @@ def _rows(run: Path):
     if met is None:
         missing(S_LOOP, A.METRICS_JSON)
         return rows
-    c1000 = next((c for c in met.get("contouring", []) if round(c.get("speed_um_s", 0)) == 1000), {})
+    c1000 = next((c for c in met.get("contouring", [])
+                  if round(c.get("speed_um_s", 0)) == PAPER_CONTOUR_SPEED_UM_S), {})
     none = (None, "")
     spec = [
         ("S bandwidth on the stage", PAPER["bwS"], met.get("bandwidth_S_hz"), "Hz", *_check("bandwidth_S_stage_hz")),

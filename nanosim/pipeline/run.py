@@ -144,7 +144,7 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
     from nanosim.experiments.batch_suite import MemberPlant, run_experiments_batch
     from nanosim.experiments.registry import ExperimentContext
     from nanosim.fileio import save_figure
-    from nanosim.pipeline.characterize import make_factory
+    from nanosim.pipeline.characterize import METRICS_UNITS, make_factory, plant_description
     from nanosim.plant.linearize import linearize
     from nanosim.plant.modes import modal_analysis
     from nanosim.plant.stage import Stage, StageConfig
@@ -177,9 +177,9 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
         if exp.figure is not None and exp.figure_name:
             save_figure(exp.figure(res[name], ctx), out / exp.figure_name)
     metrics["experiment_seconds"] = seconds
-    metrics["plant"] = "linear twin (same electromechanics)" if twin else "MuJoCo stage, every effect on"
+    metrics["plant"] = plant_description(twin)
     metrics["seed"] = seed
-    metrics["units"] = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
+    metrics["units"] = dict(METRICS_UNITS)
     write_json(out / A.METRICS_JSON, metrics)
     return metrics
 

@@ -21,11 +21,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from nanosim.fileio import write_json
+from nanosim.pipeline.artifacts import MANIFEST_JSON
 
 __all__ = ["RunFolderError", "MANIFEST_JSON", "SealedRun", "check_writable", "staged_run", "writer_lock",
            "write_manifest", "verify_manifest", "sealed_run", "verify_input_file", "sha256_file"]
-
-MANIFEST_JSON = "manifest.json"
 
 
 class RunFolderError(ValueError):

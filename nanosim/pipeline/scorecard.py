@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from nanosim.fileio import write_json, write_text
-from nanosim.paper import PAPER
+from nanosim.design.robustness import DISK_MARGIN_TARGET
+from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S
 from nanosim.pipeline import artifacts as A
 
 __all__ = ["Metric", "METRICS", "ACCEPTANCE", "DEFAULT_RULE", "flatten_metrics", "robustness_metrics", "scorecard",
@@ -96,8 +97,8 @@ METRICS: tuple[Metric, ...] = (
     Metric("small_steps_max_error_nm", "10 nm staircase, largest plateau error", "nm", False),
     Metric("hysteresis_closed_loop_nm", "closed-loop hysteresis", "nm", False),
     Metric("creep_closed_loop_drift_nm", "closed-loop creep drift", "nm", False),
-    Metric("multiloop_disk_margin", "multiloop disk margin alpha (identified model = the loop as run)", "", True, 0.4,
-           per_seed=False),
+    Metric("multiloop_disk_margin", "multiloop disk margin alpha (identified model = the loop as run)", "", True,
+           DISK_MARGIN_TARGET, per_seed=False),
     Metric("disk_margin_input_output", "disk margin alpha, inputs and outputs at once", "", True, per_seed=False),
     Metric("multiloop_disk_margin_twin", "multiloop disk margin alpha (linear twin, 1-sample delay)", "", True,
            per_seed=False),
@@ -138,7 +139,7 @@ def flatten_metrics(m: dict) -> dict:
     sensor = m.get("resolution_sigma_nm") or {}
     out["sigma_sensor_nm"] = _num(sensor.get("closed_loop")) if sensor else None
     for c in m.get("contouring") or []:
-        if abs(c.get("speed_um_s", 0) - 1000.0) < 1e-6:
+        if abs(c.get("speed_um_s", 0) - PAPER_CONTOUR_SPEED_UM_S) < 1e-6:
             out["contour_mean_1000_nm"] = _num(c.get("mean_error_nm"))
             out["contour_max_1000_nm"] = _num(c.get("max_error_nm"))
     for c in m.get("tracking") or []:
@@ -238,6 +239,8 @@ def scorecard(specs, per_seed: dict, robustness: dict, config, *, model_path=Non
     So_bandwidths : dict or None
         ``{name: S_o bandwidth of the identified model [Hz]}``.
     """
+    from nanosim.pipeline.characterize import plant_description
+
     So_bandwidths = So_bandwidths or {}
     ctrls = {}
     for spec in specs:
@@ -262,7 +265,7 @@ def scorecard(specs, per_seed: dict, robustness: dict, config, *, model_path=Non
             "sampled_parameter_set_stable": rob.get("sampled_all_stable"),
         }
     doc = {"controllers": ctrls, "seeds": list(config.seeds),
-           "plant": "linear twin (same electromechanics)" if config.twin else "MuJoCo stage, every effect on",
+           "plant": plant_description(config.twin),
            "experiments": list(config.only) if config.only else "all registered",
            "model": None if model_path is None else str(model_path),
            "metrics": [{"key": m.key, "label": m.label, "unit": m.unit, "higher_is_better": m.higher_is_better,

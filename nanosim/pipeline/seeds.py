@@ -32,15 +32,15 @@ import numpy as np
 
 from nanosim.fileio import write_json, write_text
 from nanosim.pipeline import artifacts as A
+from nanosim.pipeline import mc_stats
 from nanosim.pipeline.config import PipelineConfig
 
-__all__ = ["parse_seeds", "run_pipeline_seeds", "SEEDS_JSON"]
+__all__ = ["parse_seeds", "run_pipeline_seeds"]
 
-SEEDS_JSON = "seeds.json"
 _KEY = ("bandwidth_S_hz", "bandwidth_T_hz", "step_2um.settling_ms", "step_2um.overshoot_percent",
         "resolution_sigma_nm.open_loop", "resolution_sigma_nm.closed_loop", "hysteresis.open_loop_percent",
         "hysteresis.closed_loop_nm", "creep.open_loop_drift_nm", "creep.closed_loop_drift_nm",
-        "contouring.1000um_s.mean_error_nm")
+        mc_stats.CONTOUR_MEAN_METRIC)
 
 
 MAX_SEEDS = 1000        # a bound on --seeds: 1000 seeds are ~1000 pipeline runs, more is a typo
@@ -76,7 +76,7 @@ def parse_seeds(text: str, *, sort: bool = True) -> tuple[int, ...]:
 
 
 def _seed_dir(out: Path, seed: int) -> Path:
-    return out / f"seed_{seed}"
+    return out / A.pipeline_seed_dir(seed)
 
 
 def _identify_task(seed_dir: str, ident_cfg, mjcf) -> float:
@@ -214,7 +214,7 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
     timings["report"] = round(time.perf_counter() - t, 2)
     doc = _summary(seeds, per_seed, timings)
     doc["task_seconds_all_seeds"] = task_seconds
-    write_json(out / SEEDS_JSON, doc)
+    write_json(out / A.SEEDS_JSON, doc)
     write_json(out / A.PIPELINE_JSON, {"stage_seconds": timings, "seeds": list(seeds)})
     write_text(out / A.REPORT_MD, _report(doc))
     return doc
@@ -269,7 +269,7 @@ def _report(doc: dict) -> str:
     lines = [f"# nanosim pipeline, seeds {', '.join(map(str, seeds))}", "",
              f"**Checked quantities inside their bands: mean {doc['in_band_mean']:.1f} of {doc['banded']} over "
              f"{len(seeds)} seeds, worst seed {doc['in_band_worst']} of {doc['banded']}.** Each seed's own report: "
-             + ", ".join(f"[seed {s}](seed_{s}/report.md) ({doc['in_band_per_seed'][str(s)]}/"
+             + ", ".join(f"[seed {s}]({A.pipeline_seed_dir(s)}/{A.REPORT_MD}) ({doc['in_band_per_seed'][str(s)]}/"
                          f"{doc['banded_per_seed'][str(s)]})" for s in seeds) + ".", "",
              "| quantity (MuJoCo stage) | " + " | ".join(f"seed {s}" for s in seeds) + " | mean | min | max |",
              "|---|" + "---|" * (len(seeds) + 3)]

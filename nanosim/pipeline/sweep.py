@@ -36,6 +36,7 @@ import numpy as np
 
 from nanosim import constants as C
 from nanosim.fileio import save_figure, write_json, write_text
+from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import DesignConfig, SweepConfig
 from nanosim.pipeline.scaleout import open_executor, run_tasks
 
@@ -43,7 +44,6 @@ __all__ = ["parse_param", "param_names", "check_params", "point_model", "design_
            "pareto_front", "SWEEP_EXPERIMENTS"]
 
 SWEEP_EXPERIMENTS = ("bandwidth", "resolution")
-FIG_PARETO = "fig_sweep_pareto.png"
 _LABELS = {"bandwidth_S_hz": "S bandwidth, measured [Hz]", "travel_um": "travel, smallest axis [um]",
            "resolution_nm": "closed-loop resolution sigma, X [nm]"}
 
@@ -184,12 +184,12 @@ def design_for_point(model, config: DesignConfig | None = None, seed: int = 0) -
     ident = identify_stage(IdentifySettings(seed=seed), model=model, runner=runner)
     with tempfile.TemporaryDirectory(prefix="nanosim-sweep-") as tmp:
         tmp = Path(tmp)
-        save_model(tmp / "model.npz", ident)
+        save_model(tmp / A.MODEL_NPZ, ident)
         t = mech.sys_V
-        write_npz(tmp / "twin.npz", A=t.A, B=t.B, C=t.C, D=t.D, dt=mech.dt_s)
-        run_design(tmp / "model.npz", tmp, config or DesignConfig(), twin=str(tmp / "twin.npz"))
-        ctrl = DiscreteController.from_npz(tmp / "controller.npz").config
-        des = json.loads((tmp / "design.json").read_text())
+        write_npz(tmp / A.TWIN_NPZ, A=t.A, B=t.B, C=t.C, D=t.D, dt=mech.dt_s)
+        run_design(tmp / A.MODEL_NPZ, tmp, config or DesignConfig(), twin=str(tmp / A.TWIN_NPZ))
+        ctrl = DiscreteController.from_npz(tmp / A.CONTROLLER_NPZ).config
+        des = json.loads((tmp / A.DESIGN_JSON).read_text())
     return ctrl, {"gamma": des.get("gamma"), "controller_order": int(ctrl.n_states),
                   "design_bandwidth_S_hz": des.get("bandwidth_S_hz"),
                   "design_bandwidth_T_hz": des.get("bandwidth_T_hz"),
@@ -293,12 +293,12 @@ def run_sweep(out, config: SweepConfig, *, progress: bool = True, say=None) -> d
     records.sort(key=lambda r: r["index"])
     for r in records:
         r["label"] = _label(r["values"])
-        write_json(out / "points" / f"point_{r['index']:03d}.json", r)
+        write_json(out / A.SWEEP_POINTS_DIR / A.sweep_point_json(r["index"]), r)
     front = pareto_front(records)
     for i, r in enumerate(records):
         r["pareto"] = i in front
     color = "resolution_nm"
-    save_figure(fig_pareto(records, front, "travel_um", "bandwidth_S_hz", color, _LABELS), out / FIG_PARETO)
+    save_figure(fig_pareto(records, front, "travel_um", "bandwidth_S_hz", color, _LABELS), out / A.FIG_SWEEP_PARETO)
     table = [{k: r.get(k) for k in ("index", "label", "first_mode_hz", "travel_um", "bandwidth_S_hz",
                                     "bandwidth_T_hz", "resolution_nm", "gamma", "controller_order", "pareto")}
              | {"values": r["values"]} for r in records]
@@ -307,8 +307,8 @@ def run_sweep(out, config: SweepConfig, *, progress: bool = True, say=None) -> d
            "wall_seconds": round(time.perf_counter() - t0, 2),
            "units": {"travel_um": "um (span over the command box, smallest axis)", "bandwidth_S_hz": "Hz",
                      "resolution_nm": "nm (closed-loop sigma, X, at rest)", "first_mode_hz": "Hz"}}
-    write_json(out / "sweep.json", doc)
-    write_text(out / "report.md", _report(doc))
+    write_json(out / A.SWEEP_JSON, doc)
+    write_text(out / A.REPORT_MD, _report(doc))
     return doc
 
 
@@ -326,7 +326,7 @@ def _report(doc: dict) -> str:
              "pipeline's rule (the identification experiments on its linear twin, then `nanosim design` with the "
              "default settings); bandwidth (PRBS, S) and closed-loop resolution measured on its linear twin with "
              "every electromechanical effect on. Pareto front: bandwidth up, travel up, resolution sigma down.", "",
-             f"![Pareto figure]({FIG_PARETO})", "",
+             f"![Pareto figure]({A.FIG_SWEEP_PARETO})", "",
              "| # | point | first mode [Hz] | travel [um] | S bandwidth [Hz] | T bandwidth [Hz] | resolution [nm] | "
              "gamma | Pareto |", "|---|---|---|---|---|---|---|---|---|"]
     for p in doc["points"]:

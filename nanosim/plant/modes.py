@@ -21,14 +21,19 @@ import mujoco
 import numpy as np
 
 from nanosim import constants as C
+from nanosim.paper import PAPER_FULL_STROKE_UM
 from nanosim.ramps import raised_cosine
 from nanosim.plant.mechanics import home_data, mechanical_matrices
 
 __all__ = ["Mode", "ModalResult", "body_part", "kinetic_energy_shares", "volts_to_force_N", "linearize_fd",
            "modal_analysis", "constraint_violation_ratio", "table_rotation_urad", "modes_json", "posed_data",
-           "FULL_STROKE_UM"]
+           "FULL_STROKE_UM", "MODES_LIST_MAX_HZ", "MODE_SHAPES_MAX_HZ"]
 
 CONSTRAINT_RATIO = 0.05
+# Two cutoffs: `nanosim modes` and modes.json list the physical modes below MODES_LIST_MAX_HZ; the mode-shape
+# figures (the pipeline's modes/ folder) draw those below MODE_SHAPES_MAX_HZ.
+MODES_LIST_MAX_HZ = 3000.0
+MODE_SHAPES_MAX_HZ = 1000.0
 
 
 @dataclass(frozen=True)
@@ -232,7 +237,7 @@ def constraint_violation_ratio(model: mujoco.MjModel, volts=(7.5, -1.0, -1.0), s
     return float(err / disp)
 
 
-FULL_STROKE_UM = 87.0        # paper Sec. 2: "a maximum displacement of about 87 um along each axis"
+FULL_STROKE_UM = PAPER_FULL_STROKE_UM        # paper Sec. 2 (nanosim.paper)
 
 
 def table_rotation_urad(model: mujoco.MjModel, stroke_um: float = FULL_STROKE_UM) -> dict:
@@ -256,7 +261,8 @@ def table_rotation_urad(model: mujoco.MjModel, stroke_um: float = FULL_STROKE_UM
     return out
 
 
-def modes_json(model: mujoco.MjModel, fmax_hz: float = 3000.0, full_model: mujoco.MjModel | None = None) -> dict:
+def modes_json(model: mujoco.MjModel, fmax_hz: float = MODES_LIST_MAX_HZ,
+               full_model: mujoco.MjModel | None = None) -> dict:
     """The dict printed by ``nanosim modes --json``: every physical mode below ``fmax_hz`` and more.
 
     ``full_model``: the full-compliance model of the same stage; its modes below ``fmax_hz``, table

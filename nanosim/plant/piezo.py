@@ -532,7 +532,7 @@ class PiezoModel:
         Number of actuators.
     """
 
-    def __init__(self, config: PiezoConfig | None = None, dt_s: float = 1.0 / 4000.0, n_channels: int = 3):
+    def __init__(self, config: PiezoConfig | None = None, dt_s: float = C.CONTROL_PERIOD_S, n_channels: int = 3):
         self.config = PiezoConfig() if config is None else config
         self.n_channels = int(n_channels)
         self.dt_s = float(dt_s)

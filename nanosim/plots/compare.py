@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from nanosim.paper import PAPER
+from nanosim import artifact_names as N
+from nanosim.paper import PAPER, PAPER_STEP_UM
 from nanosim.plots.style import new_figure
 
 __all__ = ["fig_compare_loops", "fig_compare_step", "fig_compare_contour", "fig_compare_psd", "compare_figures"]
@@ -44,7 +45,7 @@ def fig_compare_loops(responses: dict):
     return fig
 
 
-def fig_compare_step(steps: dict, step_um: float = 2.0):
+def fig_compare_step(steps: dict, step_um: float = PAPER_STEP_UM):
     """X reading after a 2 um step per controller: ``{name: (t_s, y_um)}`` (step at t = 0)."""
     fig, axs = new_figure(1, 1, size=(9, 4.5))
     ax = axs[0, 0]
@@ -112,11 +113,11 @@ def compare_figures(results: dict, responses: dict) -> dict:
             psds[name] = (rr.psd_freq_hz, rr.psd_closed)
     figs = {}
     if responses:
-        figs["compare_loops.png"] = fig_compare_loops(responses)
+        figs[N.COMPARE_LOOPS_PNG] = fig_compare_loops(responses)
     if steps:
-        figs["compare_step.png"] = fig_compare_step(steps)
+        figs[N.COMPARE_STEP_PNG] = fig_compare_step(steps)
     if contours:
-        figs["compare_contour.png"] = fig_compare_contour(contours)
+        figs[N.COMPARE_CONTOUR_PNG] = fig_compare_contour(contours)
     if psds:
-        figs["compare_psd.png"] = fig_compare_psd(psds)
+        figs[N.COMPARE_PSD_PNG] = fig_compare_psd(psds)
     return figs

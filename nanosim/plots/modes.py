@@ -4,7 +4,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from nanosim.plant.modes import posed_data
+from nanosim.artifact_names import mode_shape_png
+from nanosim.plant.modes import MODE_SHAPES_MAX_HZ, posed_data
 
 __all__ = ["mode_shape_figures", "mode_shape_file_name"]
 
@@ -53,11 +54,11 @@ def _tendons_mm(model: mujoco.MjModel, data: mujoco.MjData) -> list:
 
 
 def mode_shape_file_name(index: int, mode) -> str:
-    """``mode_01_176Hz.png`` for the first mode (index 0); matches ``artifacts`` pattern ``modes/mode_*.png``."""
-    return f"mode_{index + 1:02d}_{mode.freq_hz:.0f}Hz.png"
+    """``mode_01_176Hz.png`` for the first mode (index 0): :func:`nanosim.artifact_names.mode_shape_png`."""
+    return mode_shape_png(index, mode.freq_hz)
 
 
-def mode_shape_figures(model: mujoco.MjModel, result, fmax_hz: float = 1000.0,
+def mode_shape_figures(model: mujoco.MjModel, result, fmax_hz: float = MODE_SHAPES_MAX_HZ,
                        max_displacement_mm: float = 4.0) -> list:
     """One Figure per physical mode below ``fmax_hz``: home (grey) vs exaggerated shape (red).
 

@@ -69,8 +69,8 @@ def fig_sensitivity(sens: dict, top_groups: int = 9):
     return fig
 
 
-def fig_crosscheck(cross: list):
-    """Twin vs MuJoCo, relative difference of every cross-checked metric per sample (5 % band)."""
+def fig_crosscheck(cross: list, tol_percent: float):
+    """Twin vs MuJoCo, relative difference of every cross-checked metric per sample, with the ``tol_percent`` band."""
     metrics = sorted({m for c in cross for m in c["metrics"]})
     fig, ax = subplots(1, 1, figsize=(9, 0.35 * len(metrics) + 2))
     for k, c in enumerate(cross):
@@ -80,7 +80,7 @@ def fig_crosscheck(cross: list):
         res = np.array([r.get("within_resolution", False) for r in c["metrics"].values()], bool)
         line, = ax.plot(x[~res], y[~res], "o", ms=3, label=f"#{c['sample']}")
         ax.plot(x[res], y[res], "o", ms=4, mfc="none", color=line.get_color())
-    ax.axvspan(-5, 5, color="tab:green", alpha=0.12, label="within 5 %")
+    ax.axvspan(-tol_percent, tol_percent, color="tab:green", alpha=0.12, label=f"within {tol_percent:g} %")
     ax.plot([], [], "o", ms=4, mfc="none", color="0.4", label="within the reading resolution")
     ax.set_yticks(range(len(metrics)), metrics, fontsize=8)
     ax.set_xlabel("(twin - MuJoCo) / MuJoCo [%]")

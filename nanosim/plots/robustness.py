@@ -10,7 +10,7 @@ from __future__ import annotations
 
 
 from nanosim.design.lti import singular_values
-from nanosim.design.robustness import ROBUSTNESS_MAPS, ControllerRobustness
+from nanosim.design.robustness import DISK_MARGIN_TARGET, ROBUSTNESS_MAPS, ControllerRobustness
 from nanosim.plots.style import magnitude_db, new_figure
 
 __all__ = ["plot_loop_singular_values", "plot_disk_margins"]
@@ -73,7 +73,7 @@ def plot_loop_singular_values(analyses, title: str = "Loop transfer matrices of 
     return fig
 
 
-def plot_disk_margins(analyses, target_alpha: float = 0.4, title: str = "Disk margins per frequency"):
+def plot_disk_margins(analyses, target_alpha: float = DISK_MARGIN_TARGET, title: str = "Disk margins per frequency"):
     """Multiloop disk margin ``alpha(f)`` at input, output and both, and the mu of the
     uncertainty set, every plant overlaid.
 
@@ -81,7 +81,8 @@ def plot_disk_margins(analyses, target_alpha: float = 0.4, title: str = "Disk ma
     ----------
     analyses : mapping of str to ControllerRobustness
     target_alpha : float
-        Drawn as a dashed line (issue 13: multiloop disk margin >= 0.4).
+        Drawn as a dashed line (issue 13: multiloop disk margin >= 0.4,
+        :data:`~nanosim.design.robustness.DISK_MARGIN_TARGET`).
     title : str
 
     Returns

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nanosim.artifact_names import CONTROLLER_NPZ, SCORECARD_JSON
 from nanosim.design.controller import DiscreteController
 
 __all__ = ["load_bench", "switch_controller", "add_bench_gui", "apply_bench_choice", "bench_setup",
@@ -32,13 +33,13 @@ def load_bench(folder) -> dict[str, DiscreteController]:
     if not p.is_dir():
         raise FileNotFoundError(f"--bench: expected a nanosim compare run folder, got {str(p)!r}")
     out = {}
-    files = sorted(p.glob("*/controller.npz"))
+    files = sorted(p.glob(f"*/{CONTROLLER_NPZ}"))
     order = _scorecard_order(p)
     files.sort(key=lambda f: (order.index(f.parent.name) if f.parent.name in order else len(order), f.parent.name))
     for f in files:
         out[f.parent.name] = DiscreteController.from_npz(f)
     if not out:
-        raise FileNotFoundError(f"--bench: no <name>/controller.npz in {str(p)!r} (run nanosim compare first)")
+        raise FileNotFoundError(f"--bench: no <name>/{CONTROLLER_NPZ} in {str(p)!r} (run nanosim compare first)")
     return out
 
 
@@ -87,7 +88,7 @@ def bench_setup(bench, controller):
 
 def _scorecard(folder: Path) -> dict:
     import json
-    p = folder / "scorecard.json"
+    p = folder / SCORECARD_JSON
     try:
         return json.loads(p.read_text()) if p.is_file() else {}
     except (OSError, ValueError):

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from nanosim.constants import DEFAULT_DAMPING_LOWPASS_HZ, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER
 from nanosim.design.architectures.common import DT_S, LOOP_DELAY_SAMPLES, BenchDesign, as_continuous
 from nanosim.design.damping import damped_plant, damping_loop
 from nanosim.design.discretize import discretize_controller
@@ -27,14 +28,15 @@ from nanosim.design.weights import Weights
 __all__ = ["design_hinf_damped", "tustin_delay", "TUNING_RULE", "REDUCED_ORDER", "DAMPING_ZETA",
            "DAMPING_LOWPASS_HZ"]
 
-# the pipeline's defaults (nanosim.pipeline.config.DesignConfig(); tests/test_bench_controllers.py checks)
-REDUCED_ORDER = 14
-DAMPING_ZETA = 0.1
-DAMPING_LOWPASS_HZ = 400.0
+# the pipeline's defaults (nanosim.pipeline.config.DesignConfig(), defined in nanosim.constants)
+REDUCED_ORDER = DEFAULT_REDUCED_ORDER
+DAMPING_ZETA = DEFAULT_DAMPING_ZETA
+DAMPING_LOWPASS_HZ = DEFAULT_DAMPING_LOWPASS_HZ
 # when the pipeline's damping loop is unstable with the loop's delay: less added damping, then a higher low-pass
 FALLBACK_ZETAS = (0.05, 0.03, 0.02)
 FALLBACK_LOWPASS_HZ = (500.0, 600.0, 800.0, 1000.0)
-TUNING_RULE = ("14-state model, damping loop adding zeta 0.1 to the first mode (400 Hz low-pass; less damping, then "
+TUNING_RULE = (f"{REDUCED_ORDER}-state model, damping loop adding zeta {DAMPING_ZETA:g} to the first mode "
+               f"({DAMPING_LOWPASS_HZ:g} Hz low-pass; less damping, then "
                "a higher low-pass, if that inner loop is unstable with the loop's delay), optimal H-infinity with the "
                "paper's weights on the damped plant; design model = the identified model, the loop as run")
 

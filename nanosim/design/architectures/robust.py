@@ -36,6 +36,7 @@ from nanosim.design.architectures.common import (
     distinct_modes_hz,
 )
 from nanosim.design.lti import single_threaded_blas
+from nanosim.design.robustness import DISK_MARGIN_TARGET
 
 __all__ = ["design_robust", "ncf_controller", "TUNING_RULE"]
 
@@ -48,7 +49,7 @@ NOTCH_ZETA = 1.0
 LOWPASS_HZ = 600.0
 REDUCED_ORDER = 16
 MU_MAX = 0.95
-DISK_MARGIN_MIN = 0.4
+DISK_MARGIN_MIN = DISK_MARGIN_TARGET
 GAMMA_MAX = 4.0
 
 
