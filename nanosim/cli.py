@@ -516,7 +516,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "lqg-nominal), "
                          ".npz/.mat state spaces (A, B, C, D, dt) or module:function returning a controller object")
     compare_seeds = _field_default(CompareConfig, "seeds")
-    cp.add_argument("--seeds", type=_seeds(sort=False), default=compare_seeds,
+    cp.add_argument("--seeds", type=_seeds(sort=True), default=compare_seeds,
                     help=f"seeds, a range like 0-4 or a list (default {','.join(map(str, compare_seeds))}; "
                          f"at most {MAX_SEEDS})")
     cp.add_argument("--out", required=True, type=out, help="run folder for the scorecard")

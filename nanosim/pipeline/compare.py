@@ -268,7 +268,7 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
     names = check_only(config.only)
     t0 = time.perf_counter()
     needs_model = any(_is_bench(c) for c in config.controllers)
-    Gd, model_path = (resolve_model(config.model, out, config.seeds[0], mjcf, say) if needs_model or config.model
+    Gd, model_path = (resolve_model(config.model, out, min(config.seeds), mjcf, say) if needs_model or config.model
                       else (None, None))
     specs: list[ControllerSpec] = []
     for c in config.controllers:
@@ -301,7 +301,7 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
             m["run_seconds"] = round(time.perf_counter() - t, 2)
             write_json(folder / A.compare_seed_dir(seed) / A.METRICS_JSON, m)
             per[spec.name][seed] = m
-            if seed == config.seeds[0]:
+            if seed == min(config.seeds):
                 first_results[spec.name] = res
     analyses, so_bw = {}, {}
     if Gd is not None:

@@ -213,6 +213,21 @@ def _export_lqg(out: Path, G, dt: float, loop_delay: int, units, say) -> dict:
                                   "reference design of these settings (nanosim design --architecture hinf)")}
 
 
+def _input_ref(path, out_dir) -> dict:
+    """An input file as design.json records it, with its sha256.
+
+    Its path is relative to the run folder when it lies inside it (the run folder may be a staging
+    folder renamed at the end), else absolute.
+    """
+    from nanosim.pipeline.runfolder import sha256_file
+    p = Path(path).resolve()
+    try:
+        where = str(p.relative_to(Path(out_dir).resolve()))
+    except ValueError:
+        where = str(p)
+    return {"path": where, "sha256": sha256_file(p)}
+
+
 @single_threaded_blas
 def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=None, progress: bool = False,
                dt: float | None = None) -> Design:
@@ -384,8 +399,8 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
         "twin_analysis": None if G_twin is None else
         f"twin behind Pade({DELAY_PADE_ORDER}) of {0.5 + bench.computation_delay_samples:g} samples (zero-order hold "
         f"and computation delay), amplifier {bench.amplifier_bandwidth_Hz} Hz, gauge {bench.gauge_bandwidth_Hz} Hz",
-        "inputs": {"model_npz": str(model_npz),
-                   "twin": None if twin is None else (str(twin) if isinstance(twin, (str, os.PathLike))
+        "inputs": {"model_npz": _input_ref(model_npz, out_dir),
+                   "twin": None if twin is None else (_input_ref(twin, out_dir) if isinstance(twin, (str, os.PathLike))
                                                       else f"StateSpace, {G_twin.nstates} states")},
     })
     try:
