@@ -231,14 +231,18 @@ def run_points(task: dict, points: list, sink) -> list[dict]:
             sink.put(1)
         ok = [i for i, c in enumerate(ctrls) if c is not None]
         metrics = [{} for _ in recs]
-        if ok:
-            got, _ = run_experiments_batch(list(SWEEP_EXPERIMENTS), [plants[i] for i in ok], [ctrls[i] for i in ok],
-                                           seed=task["seed"], exact=True, nthread=1,
-                                           progress=lambda name: sink.put(len(points)))
-            for i, m in zip(ok, got):
+        # one batch per controller order: a batch pads its controllers to the largest order, and padded
+        # products sum in another order, so a point's bits would depend on the points sharing its chunk
+        groups = {}
+        for i in ok:
+            groups.setdefault(ctrls[i].n_states, []).append(i)
+        for members in groups.values():
+            got, _ = run_experiments_batch(list(SWEEP_EXPERIMENTS), [plants[i] for i in members],
+                                           [ctrls[i] for i in members], seed=task["seed"], exact=True, nthread=1,
+                                           progress=lambda name, k=len(members): sink.put(k))
+            for i, m in zip(members, got):
                 metrics[i] = m
-        else:
-            sink.put(len(points) * len(SWEEP_EXPERIMENTS))
+        sink.put((len(points) - len(ok)) * len(SWEEP_EXPERIMENTS))
     for rec, met in zip(recs, metrics):
         flat = flatten_metrics(met)
         rec["metrics"] = met
