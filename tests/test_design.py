@@ -402,10 +402,10 @@ def test_run_design_artifacts(tmp_path):
     js = json.loads((out / "design.json").read_text())
     for k in ("gamma", "controller_order", "reduced_order", "hankel_sv", "S_peak_nominal", "S_peak_full",
               "bandwidth_S_hz", "bandwidth_T_hz", "weights", "stable_full", "stable_nominal",
-              "discretization_max_rel_error_below_500hz", "units"):
+              "discretization_max_rel_error", "discretization_check_band_hz", "units"):
         assert k in js, k
     assert js["controller_order"] == 19 and js["reduced_order"] == 10
-    assert js["discretization_max_rel_error_below_500hz"] < 0.01
+    assert js["discretization_max_rel_error"] < 0.01 and js["discretization_check_band_hz"] == 500.0
     assert js["stable_discrete_full"] is True
     m = loadmat(out / "design.mat")
     assert m["K_A"].shape == (19, 19) and m["G_A"].shape == (39, 39)

@@ -449,7 +449,7 @@ def test_report_shows_the_designs_own_warnings(tmp_path):
     md, page = write_report(run)
     text = md.read_text()
     assert "## Warnings" in text and "None:" in text.split("## Warnings")[1].split("##")[0]
-    bad = dict(des, discretization_within_1_percent=False, discretization_max_rel_error_below_500hz=0.034,
+    bad = dict(des, discretization_within_1_percent=False, discretization_max_rel_error=0.034,
                Eo_max_dB_below_140Hz=-15.27, controller_fastest_pole_rad_s=9.9e11,
                closed_loop_min_damping_nominal=0.0037, closed_loop_min_damping_nominal_hz=474.3, stable_twin=False)
     (run / "design.json").write_text(json.dumps(bad))

@@ -187,18 +187,56 @@ def test_montecarlo_writes_per_sample_resumes_and_seals(tmp_path, controller_npz
                                                              experiments=("small_steps",)), progress=False)
 
 
-def test_local_cluster_gives_the_local_numbers(tmp_path, controller_npz):
+def _result_bytes(folder):
+    """Every file of a run folder but the two that may differ between runs with the same seed."""
+    from nanosim.pipeline.artifacts import MANIFEST_JSON, TIMINGS_JSON
+
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name not in (TIMINGS_JSON, MANIFEST_JSON)}
+
+
+def test_chunking_and_the_cluster_do_not_change_a_bit(tmp_path, controller_npz):
+    """5 samples as one chunk of 5 on one local worker vs 5 chunks of 1 on a 2-worker Dask cluster: other batch
+    compositions and placements, the same sample records bit for bit, and every file but timings.json and
+    manifest.json byte-identical."""
     pytest.importorskip("distributed")
-    cfg = dict(n=2, seed=7, crosscheck=0, experiments=("small_steps",))
-    run_montecarlo(controller_npz, tmp_path / "local", MonteCarloConfig(**cfg, workers=1), progress=False)
-    run_montecarlo(controller_npz, tmp_path / "dask", MonteCarloConfig(**cfg, workers=2, scheduler="local"),
+    from nanosim.pipeline.artifacts import TIMINGS_JSON
+
+    cfg = dict(n=5, seed=7, crosscheck=0, experiments=("small_steps",))
+    run_montecarlo(controller_npz, tmp_path / "local", MonteCarloConfig(**cfg, workers=1, chunk=5), progress=False)
+    run_montecarlo(controller_npz, tmp_path / "dask", MonteCarloConfig(**cfg, workers=2, chunk=1, scheduler="local"),
                    progress=False)
     a, b = _samples(tmp_path / "local"), _samples(tmp_path / "dask")
-    assert a.keys() == b.keys()
+    assert len(a) == 5 and a.keys() == b.keys()
     for k in a:
-        for rec in (a[k], b[k]):
-            rec.pop("seconds")
-        assert a[k] == b[k]
+        assert a[k]["metrics"] and a[k]["metrics"] == b[k]["metrics"]       # JSON floats round-trip: bitwise
+        assert "seconds" not in a[k]                                        # wall time: in timings.json
+        assert a[k]["units"]["tolerances"] == {"thickness.*": "um", "radius.*": "um", "width.*": "um",
+                                               "target_mass": "g", "piezo_gain.*": "dimensionless factor"}
+    ra, rb = _result_bytes(tmp_path / "local"), _result_bytes(tmp_path / "dask")
+    assert ra.keys() == rb.keys() and [k for k in ra if ra[k] != rb[k]] == []
+    timings = json.loads((tmp_path / "dask" / TIMINGS_JSON).read_text())["files"]
+    assert {f"samples/sample_{i:05d}.json" for i in range(5)} | {"summary.json"} == set(timings)
+    assert TIMINGS_JSON in verify_manifest(tmp_path / "dask")["files_sha256"]
+
+
+def test_same_seed_same_bytes_but_timings(tmp_path, controller_npz):
+    """``nanosim characterize --twin --only small_steps`` twice: only timings.json and manifest.json differ."""
+    import subprocess
+    import sys
+
+    from nanosim.pipeline.artifacts import METRICS_JSON, TIMINGS_JSON
+
+    for name in ("a", "b"):
+        subprocess.run([sys.executable, "-m", "nanosim", "characterize", "--controller", str(controller_npz),
+                        "--out", str(tmp_path / name), "--twin", "--only", "small_steps", "--seed", "3"],
+                       check=True, capture_output=True, timeout=600)
+    ra, rb = _result_bytes(tmp_path / "a"), _result_bytes(tmp_path / "b")
+    assert METRICS_JSON in ra and ra.keys() == rb.keys() and [k for k in ra if ra[k] != rb[k]] == []
+    assert "experiment_seconds" not in json.loads(ra[METRICS_JSON])
+    timings = json.loads((tmp_path / "a" / TIMINGS_JSON).read_text())["files"]
+    assert list(timings[METRICS_JSON]["experiment_seconds"]) == ["small_steps"]
+    assert TIMINGS_JSON in verify_manifest(tmp_path / "a")["files_sha256"]
 
 
 def test_crosscheck_agreement_is_relative_or_within_one_reading_quantum():

@@ -118,3 +118,21 @@ def test_seeds_summary_takes_the_worst_seed_per_criterion():
     assert rows["bandwidth_S_hz"]["worst"] == 43.0 and rows["bandwidth_S_hz"]["every_seed"] is True
     assert rows["mu_peak"]["every_seed"] is None and rows["mu_peak"]["worst"] is None
     assert acc["met_on_every_seed"] == 2 and acc["measured"] == 3      # bandwidth, overshoot; settling fails
+
+
+def test_report_shows_the_stage_wall_times_of_timings_json(tmp_path):
+    """The wall times live in timings.json (result files hold none); a folder written before it keeps its
+    pipeline.json stage_seconds."""
+    from nanosim.pipeline.timings import read_timings, record_timings
+
+    (tmp_path / "pipeline.json").write_text(json.dumps({"seed": 0}))
+    record_timings(tmp_path, {"pipeline.json": {"stage_seconds": {"identify": 12.5, "design": 3.25}}})
+    record_timings(tmp_path, {"metrics.json": {"experiment_seconds": {"creep": 1.0}}})
+    assert read_timings(tmp_path, "pipeline.json")["stage_seconds"]["design"] == 3.25
+    md, _ = write_report(tmp_path)
+    assert "Stage wall times (s): identify 12.5, design 3.25" in md.read_text()
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "pipeline.json").write_text(json.dumps({"stage_seconds": {"modes": 7.0}, "seed": 0}))
+    md, _ = write_report(old)
+    assert "Stage wall times (s): modes 7.0" in md.read_text()

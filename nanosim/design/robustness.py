@@ -488,7 +488,8 @@ class ControllerRobustness:
     poles : ndarray, complex
         Closed-loop poles (``z``).
     summary : dict
-        :func:`robustness_summary`-style figures plus ``least_damped_*_50_1000hz`` and
+        :func:`robustness_summary`-style figures plus ``least_damped_in_band_*`` (poles inside
+        ``least_damped_band_hz``, :data:`~nanosim.design.loops.MODE_BAND_HZ`) and
         ``least_damped_visible_*`` (poles with :func:`pole_visibility` >= :data:`VISIBLE_PEAK`).
     uncertainty : UncertaintySet or None
     mixed : MixedRobustStabilityResult or None
@@ -563,8 +564,9 @@ def analyze_controller(controller, plant, *, n_error: int | None = None, uncerta
     poles = closed_loop_poles(G, K, Ky, d)
     summary = _poles_dict(poles, plant.dt, None)
     band = _poles_dict(poles, plant.dt, MODE_BAND_HZ)
-    summary["least_damped_zeta_50_1000hz"] = band.get("least_damped_zeta")
-    summary["least_damped_freq_50_1000hz_hz"] = band.get("least_damped_freq_hz")
+    summary["least_damped_band_hz"] = [float(f) for f in MODE_BAND_HZ]
+    summary["least_damped_in_band_zeta"] = band.get("least_damped_zeta")
+    summary["least_damped_in_band_freq_hz"] = band.get("least_damped_freq_hz")
     lam, peak = pole_visibility(G, K, Ky, d)
     vis = _poles_dict(lam[peak >= VISIBLE_PEAK], plant.dt, None)
     summary["least_damped_visible_zeta"] = vis.get("least_damped_zeta")

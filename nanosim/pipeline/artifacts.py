@@ -28,7 +28,8 @@ __all__ = ["Artifact", "FIGURES", "figure", "MODES_JSON", "MODES_DIR", "MODEL_NP
            "compare_seed_dir", "pipeline_seed_dir", "SEEDS_JSON", "PAPER_DESIGN_SEEDS_JSON", "ABLATION_JSON",
            "ABLATION_MD", "ABLATION_PARTIAL_JSON", "MONTECARLO_JSON", "TOLERANCES_JSON", "SPEC_JSON", "SUMMARY_JSON",
            "MC_SAMPLES_DIR", "MC_CROSSCHECK_DIR", "mc_sample_json", "FIG_MC_HISTOGRAMS", "FIG_MC_SENSITIVITY",
-           "FIG_MC_CROSSCHECK", "SWEEP_JSON", "SWEEP_POINTS_DIR", "sweep_point_json", "FIG_SWEEP_PARETO"]
+           "FIG_MC_CROSSCHECK", "SWEEP_JSON", "SWEEP_POINTS_DIR", "sweep_point_json", "FIG_SWEEP_PARETO",
+           "TIMINGS_JSON"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,9 @@ REPORT_MD = "report.md"                 # also the report of a montecarlo, sweep
 REPORT_HTML = "report.html"
 TWIN_DIR = "twin"
 MANIFEST_JSON = "manifest.json"         # written last: seals a run folder (nanosim.pipeline.runfolder)
+# the wall-clock times of a run folder's commands (nanosim.pipeline.timings), kept out of the result files so
+# that those are byte-identical between two runs with the same seed; a plain output, listed in the manifest
+TIMINGS_JSON = "timings.json"
 # nanosim compare (nanosim.pipeline.compare): the scorecard (SCORECARD_JSON, .md, .html) and its overlaid figures
 SCORECARD_MD = "scorecard.md"
 SCORECARD_HTML = "scorecard.html"

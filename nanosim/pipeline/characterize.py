@@ -17,6 +17,7 @@ from nanosim.experiments.registry import ExperimentContext
 from nanosim.fileio import save_figure, write_json
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import CharacterizeConfig
+from nanosim.pipeline.timings import read_timings, record_timings
 from nanosim.plant.floor import floor_model
 from nanosim.plant.linearize import linearize
 from nanosim.plant.modes import modal_analysis
@@ -101,6 +102,8 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
                      progress: bool = True) -> dict:
     """Run the experiments; write ``metrics.json`` (merged with an existing one for ``only``) and figures.
 
+    The experiments' wall times go to ``timings.json`` (:mod:`nanosim.pipeline.timings`), in registry order.
+
     Experiments are independent (fresh stage and controller each), so they run
     on ``config.workers`` threads (default: up to 2); MuJoCo steps without the
     GIL. Results do not depend on the number of workers.
@@ -117,9 +120,11 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
     G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
     metrics: dict = {}
     prev = out / A.METRICS_JSON
+    timing: dict = {}
     if cfg.only and prev.is_file():
         metrics = json.loads(prev.read_text())
-    timing = metrics.get("experiment_seconds", {})
+        timing = {**metrics.pop("experiment_seconds", {}),      # a metrics.json written before timings.json
+                  **read_timings(out, A.METRICS_JSON).get("experiment_seconds", {})}
 
     def context() -> ExperimentContext:
         return ExperimentContext(factory=factory, controller=DiscreteController(ctrl.config), seed=cfg.seed,
@@ -154,12 +159,17 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
         metrics.update(exp.metrics(results[name]))
         if exp.figure is not None and exp.figure_name:
             save_figure(exp.figure(results[name], context()), out / exp.figure_name)
-    metrics["experiment_seconds"] = timing
     metrics["plant"] = plant_description(cfg.twin)
     metrics["seed"] = cfg.seed
     metrics["units"] = dict(METRICS_UNITS)
     write_json(out / A.METRICS_JSON, metrics)
+    record_timings(out, {A.METRICS_JSON: {"experiment_seconds": _in_registry_order(timing, known)}})
     return metrics
+
+
+def _in_registry_order(seconds: dict, known) -> dict:
+    """``{experiment: seconds}`` in registry order (then any other name), not in the order the workers finished."""
+    return {**{n: seconds[n] for n in known if n in seconds}, **{n: v for n, v in seconds.items() if n not in known}}
 
 
 @functools.lru_cache(maxsize=4)
@@ -180,8 +190,8 @@ def experiment_task(controller_npz, out_dir, name: str, seed: int, mjcf=None, tw
     Runs ``name`` exactly as :func:`nanosim.pipeline.run.characterize_batch` does (same stage,
     controller, seed and code path, so the same numbers bit for bit), saves its figure into
     ``out_dir`` and returns ``(name, metrics, seconds)``; :func:`write_task_metrics` merges the
-    tasks' metrics into ``metrics.json``. Experiments are independent, so the tasks of one or
-    several runs can be spread over worker processes in any order.
+    tasks' metrics into ``metrics.json`` (their seconds into ``timings.json``). Experiments are
+    independent, so the tasks of one or several runs can be spread over worker processes in any order.
     """
     from nanosim.experiments.batch_suite import run_experiments_batch
 
@@ -203,19 +213,23 @@ def experiment_task(controller_npz, out_dir, name: str, seed: int, mjcf=None, tw
     return name, met, seconds
 
 
-def write_task_metrics(out_dir, parts, seed: int, twin: bool = False) -> dict:
+def write_task_metrics(out_dir, parts, seed: int, twin: bool = False, run_dir=None) -> dict:
     """``metrics.json`` from :func:`experiment_task` results ``parts`` (``name -> (metrics, seconds)``).
 
-    Merged in registry order, with the keys :func:`nanosim.pipeline.run.characterize_batch` writes.
+    Merged in registry order, with the keys :func:`nanosim.pipeline.run.characterize_batch` writes;
+    the seconds go to the ``timings.json`` of ``run_dir`` (default ``out_dir``; the pipeline's run
+    folder for its ``twin/`` sub-folder).
     """
     metrics: dict = {}
     for name in experiments.load_builtin():
         if name not in parts:
             raise ValueError(f"parts: expected a result for every registered experiment, {name!r} is missing")
         metrics.update(parts[name][0])
-    metrics["experiment_seconds"] = {name: parts[name][1] for name in experiments.load_builtin()}
     metrics["plant"] = plant_description(twin)
     metrics["seed"] = seed
     metrics["units"] = dict(METRICS_UNITS)
-    write_json(Path(out_dir) / A.METRICS_JSON, metrics)
+    path = write_json(Path(out_dir) / A.METRICS_JSON, metrics)
+    root = Path(out_dir if run_dir is None else run_dir)
+    record_timings(root, {path.relative_to(root).as_posix():
+                          {"experiment_seconds": {name: parts[name][1] for name in experiments.load_builtin()}}})
     return metrics

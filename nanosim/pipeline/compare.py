@@ -39,6 +39,7 @@ from nanosim.fileio import save_figure, write_json, write_npz
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import CompareConfig
 from nanosim.pipeline.scorecard import scorecard, write_scorecard
+from nanosim.pipeline.timings import record_timings
 
 __all__ = ["feedback_sensitivity", "FeedbackSensitivity", "run_compare", "resolve_model", "check_controllers",
            "check_only"]
@@ -254,9 +255,9 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
     Returns
     -------
     dict
-        The content of ``scorecard.json``.
+        The content of ``scorecard.json`` (the wall times are in ``timings.json``).
     """
-    from nanosim.pipeline.characterize import make_factory
+    from nanosim.pipeline.characterize import METRICS_UNITS, make_factory
     from nanosim.plant.linearize import linearize
     from nanosim.plant.modes import modal_analysis
     from nanosim.plant.stage import Stage, StageConfig
@@ -284,6 +285,7 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
     per: dict = {}
     first_results: dict = {}
     robustness: dict = {}
+    seconds: dict = {}          # wall times, for timings.json (the result files hold none)
     for spec in specs:
         folder = out / spec.name
         folder.mkdir(parents=True, exist_ok=True)
@@ -298,8 +300,9 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
             t = time.perf_counter()
             res = _run_suite(spec, names, factory, base, G0, seed, workers)
             m = _metrics(res, names)
-            m["run_seconds"] = round(time.perf_counter() - t, 2)
-            write_json(folder / A.compare_seed_dir(seed) / A.METRICS_JSON, m)
+            m["units"] = dict(METRICS_UNITS)
+            path = write_json(folder / A.compare_seed_dir(seed) / A.METRICS_JSON, m)
+            seconds[path.relative_to(out).as_posix()] = {"run_seconds": round(time.perf_counter() - t, 2)}
             per[spec.name][seed] = m
             if seed == min(config.seeds):
                 first_results[spec.name] = res
@@ -316,10 +319,23 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
                 so_bw[spec.name] = sensitivity_bandwidth_hz(analyses[spec.name])
     for name, fig in compare_figures(first_results, analyses).items():
         save_figure(fig, out / name)
-    doc = scorecard(specs, per, robustness, config, model_path=model_path, So_bandwidths=so_bw)
-    doc["seconds"] = round(time.perf_counter() - t0, 1)
+    doc = scorecard(specs, per, robustness, config, model_path=_model_ref(model_path, out), So_bandwidths=so_bw)
     write_scorecard(out, doc)
+    seconds[A.SCORECARD_JSON] = {"seconds": round(time.perf_counter() - t0, 1)}
+    record_timings(out, seconds)
     return doc
+
+
+def _model_ref(model_path, out: Path):
+    """The identified model's path as ``scorecard.json`` records it: relative to the run folder when it lies
+    inside it (``identified/model.npz``: the folder may be a staging folder renamed at the end), else as given.
+    """
+    if model_path is None:
+        return None
+    try:
+        return Path(model_path).resolve().relative_to(out.resolve()).as_posix()
+    except ValueError:
+        return model_path
 
 
 def _is_bench(spec: str) -> bool:

@@ -52,6 +52,7 @@ from nanosim.design.weights import Weights
 from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import DesignConfig
+from nanosim.pipeline.timings import record_timings
 from nanosim.plots.design import (
     plot_closed_loop_bode,
     plot_controller_bode,
@@ -71,6 +72,35 @@ __all__ = ["run_design", "write_robustness", "model_loop_delay_samples", "DELAY_
 # exp(-s T) at T = 250 us to 0.2 deg at 500 Hz.
 DELAY_PADE_ORDER = 2
 
+# the damping loop's discretization is checked over 0 .. this [Hz]
+DAMPING_LOOP_CHECK_BAND_HZ = 500.0
+
+# design.json's "units": the design layer's UNITS, what each key's suffix means, and the keys without one
+DESIGN_JSON_UNITS = {
+    **UNITS,
+    "frequencies": "Hz (keys ending in _hz; *_band_hz: the band a value was checked over)",
+    "relative_errors": "fraction (0.01 = 1 %): dc_gain_rel_error; discretization_max_rel_error, "
+                       "discretization_errors_by_method/* and tustin_max_rel_error, |Kd - K| / |K| over "
+                       "0 .. discretization_check_band_hz; damping_loop_discretization/"
+                       "max_rel_error_to_peak, |Kyd - Ky| / peak |Ky| over 0 .. its check_band_hz",
+    "hankel_sv, hankel_sv_kept_min, hankel_sv_dropped_max, reduction_error_bound_hinf":
+        "sensor V per controller V (Hankel singular values of the full model and the H-infinity bound of the "
+        "reduction error, absolute, not dB)",
+    "dc_gain_full, dc_gain_reduced": "sensor V per controller V (rows X, Y, Z; columns actuators A, B, C)",
+    "damping_loop_discretization/dc_gain_abs_max": "controller V per sensor V",
+    "gamma*": "dimensionless, absolute (H-infinity norm bound of the weighted closed loop, not dB)",
+    "S_peak_*, sigma_S_1hz_nominal": "largest singular value of S, dimensionless, absolute (not dB)",
+    "Eo_*_dB*": "dB (Eo: relative reduction error sigma_max; the band is in the key: below 140 Hz, above 600 Hz)",
+    "weights/W*/num, den": "coefficients in descending powers of s, s in rad/s: W(s) = (num(s)/den(s))^power",
+    "*_rad_s": "rad/s", "dt_s": "seconds", "damping_loop/gain_c_s": "seconds (c of the damping loop's Ky)",
+    "closed_loop_min_damping_*": "damping ratio (dimensionless)",
+    "spectral_radius*": "|z| of the discrete closed-loop poles",
+    "*disk_margin/multiloop*, *disk_margin/loop_at_a_time*, tried/*/multiloop_disk_margin":
+        "disk-margin alpha, dimensionless (as robustness.json's *_alpha)",
+    "mu_peak": "structured singular value (dimensionless; robustly stable if < 1)",
+    "*_V": "volts (controller V unless the key says otherwise)", "*_nm": "nanometres",
+}
+
 _ROBUSTNESS_UNITS = {
     "peak_<map>": "largest singular value, dimensionless for So, Si, To, Ti; controller V / sensor V for KS, "
                   "KS_fb; sensor V / controller V for SG (sensor V = 5 um)",
@@ -79,6 +109,7 @@ _ROBUSTNESS_UNITS = {
     "gain_margin_low/high": "gain factor", "spectral_radius, sampled_worst": "|z| of the closed-loop poles",
     "mu_*": "structured singular value over the uncertainty set (robustly stable if mu_peak < 1)",
     "least_damped_zeta": "damping ratio of the least damped closed-loop pole (z mapped by s = ln z / dt)",
+    "least_damped_in_band_*": "the same among the poles inside least_damped_band_hz ([low, high] Hz)",
     "least_damped_visible_*": "the same among the poles that add >= 0.05 to the peak of [T_ry, S_o] (the identified "
                               "model holds one copy of each mode per column; the copies' difference stays undamped "
                               "and unobservable)",
@@ -263,7 +294,7 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
     -----
     Writes ``controller.npz`` (``Ak, Bk, Ck, Dk`` continuous; ``Akd, Bkd, Ckd, Dkd,
     dt`` discrete; string arrays ``units``, ``sign_convention``, ``method``),
-    ``reduced_model.npz``, ``design.json``, ``design.mat`` and the PNG figures of
+    ``reduced_model.npz``, ``design.json`` (its step timings in ``timings.json``), ``design.mat`` and the PNG figures of
     the ``design`` step registered in :data:`nanosim.pipeline.artifacts.FIGURES`
     (``fig08_hankel_sv.png`` ... ``fig22_controller_bode.png``).
     """
@@ -376,23 +407,23 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
         "Eo_max_dB": float(eo_db.max()), "Eo_peak_hz": float(fe[int(np.argmax(eo_db))]),
         "weights": W.to_dict(),
         "dt_s": float(dt), "discretization_method": disc.method,
-        "discretization_max_rel_error_below_500hz": disc.max_rel_error if disc.f_check_hz == 500.0 else None,
         "discretization_max_rel_error": disc.max_rel_error, "discretization_check_band_hz": disc.f_check_hz,
         "discretization_worst_freq_hz": disc.worst_freq_hz,
         "discretization_errors_by_method": disc.errors_by_method,
-        "tustin_max_rel_error_below_500hz": disc.tustin_max_rel_error,
+        "tustin_max_rel_error": disc.tustin_max_rel_error,
         "discretization_within_1_percent": disc.within_tol,
         "damping_loop_discretization": None if disc_y is None else {
             "method": disc_y.method,
-            "max_error_rel_to_peak_below_500hz": error_rel_to_peak(dl.Ky, disc_y.Kd, 500.0),
+            "max_rel_error_to_peak": error_rel_to_peak(dl.Ky, disc_y.Kd, DAMPING_LOOP_CHECK_BAND_HZ),
+            "check_band_hz": DAMPING_LOOP_CHECK_BAND_HZ,
             "dc_gain_abs_max": float(np.abs(dc_gain_discrete(disc_y.Kd)).max())},
         "stable_discrete_full": stable_d, "spectral_radius_discrete_full": rho_d,
         "stable_discrete_full_with_plain_tustin": stable_d_tustin,
-        "units": UNITS,
+        "units": DESIGN_JSON_UNITS,
         "paper_targets": {"gamma": PAPER["gamma"], "controller_order": PAPER["order"],
                           "S_peak_nominal_max": PAPER["S_nom"], "S_peak_full_model_max": PAPER["S_full"],
                           "bandwidth_S_hz": PAPER["bwS"], "bandwidth_T_hz": PAPER["bwT"]},
-        "timings_s": timings, "gamma_relax": float(cfg.gamma_relax),
+        "gamma_relax": float(cfg.gamma_relax),
         "loop_delay_samples": loop_delay, "design_delay_samples": design_delay,
         "design_delay_model": f"Pade({DELAY_PADE_ORDER}) of exp(-s {design_delay} dt) per input" if design_delay
         else "none",
@@ -414,6 +445,7 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
     else:
         summary["architecture"] = "hinf"
     fileio.write_json(out / A.DESIGN_JSON, summary)
+    record_timings(out, {A.DESIGN_JSON: {"timings_s": timings}})
 
     say("robustness of the exported discrete controller on the loop as run")
     plants = {}

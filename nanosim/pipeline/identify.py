@@ -33,6 +33,17 @@ RESIDUAL_BANDS_HZ = ((0.5, 2.0), (2.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 5
 
 AXES, ACTS = C.AXES, C.ACTUATORS
 
+# identify.json's units of its operating_points entry (a second operating point was identified)
+OPERATING_POINTS_UNITS = {
+    "operating_points/piezo_V": "piezo volts (the offset of each operating point)",
+    "operating_points/bands_hz": "Hz ([low, high] of each band of median_rel_difference)",
+    "operating_points/median_rel_difference": "fraction (0.01 = 1 %): |H_second - H_first| / |H_first| per "
+                                               "element of the 3x3 frequency response, median over the band's "
+                                               "frequencies and the elements, one value per band of bands_hz",
+    "operating_points/second_point_fit_percent": "% (fit factors of the model identified at the second "
+                                                 "operating point, rows X, Y, Z, columns A, B, C)",
+}
+
 
 def save_model(path, result: IdentifiedStage) -> Path:
     """``model.npz``: continuous A..D, discrete Ad..Dd, dt, names and units."""
@@ -137,11 +148,15 @@ def run_identify(out_dir, config: IdentifyConfig | None = None, *, model=None, t
         rel = np.abs(H1 - H0) / np.maximum(np.abs(H0), 1e-12)
         extra["operating_points"] = {
             "piezo_V": list(ops),
-            "median_rel_difference_below_5hz": float(np.median(rel[f < 5])),
-            "median_rel_difference_20_to_150hz": float(np.median(rel[(f > 20) & (f < 150)])),
-            "fit_percent_second": results[1].fit_percent.round(2).tolist(),
+            # the band each median is taken over (open ends, on the 1 Hz - 1 kHz grid): [1, 5) and (20, 150) Hz
+            "bands_hz": [[float(f[0]), 5.0], [20.0, 150.0]],
+            "median_rel_difference": [float(np.median(rel[f < 5])), float(np.median(rel[(f > 20) & (f < 150)]))],
+            "second_point_fit_percent": results[1].fit_percent.round(2).tolist(),
         }
-    write_json(out / A.IDENTIFY_JSON, identify_json(main, extra))
+    doc = identify_json(main, extra)
+    if "operating_points" in extra:
+        doc["units"].update(OPERATING_POINTS_UNITS)
+    write_json(out / A.IDENTIFY_JSON, doc)
     save_figure(figure_time_fit(main), out / A.FIG04_TIME_DOMAIN_FIT)
     models = [main.sysd] + ([twin.sysd_V] if twin is not None else [])
     labels = ["identified (subspace)"] + (["linear twin (MuJoCo)"] if twin is not None else [])

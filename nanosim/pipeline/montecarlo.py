@@ -18,7 +18,10 @@ Run folder (incremental; see the README):
 * ``tolerances.json``, ``spec.json``;
 * ``samples/sample_NNNNN.json`` -- written atomically as each chunk finishes, so a rerun skips
   them and Ctrl-C loses nothing finished; ``crosscheck/sample_NNNNN.json`` likewise (MuJoCo);
+  each with its ``units``;
 * ``summary.json`` (yield, worst cases, sensitivity, cross-check), the figures and ``report.md``;
+* ``timings.json`` -- the wall times (per sample, per phase, in all), kept out of the files above so
+  that they do not depend on the machine, the chunking or the scheduler;
 * ``manifest.json`` last.
 
 A staging folder (``runfolder.staged_run``) would throw away finished samples
@@ -47,8 +50,9 @@ from nanosim.pipeline.config import MonteCarloConfig
 from nanosim.pipeline.runfolder import (MANIFEST_JSON, RunFolderError, check_writable, sha256_file, write_manifest,
                                         writer_lock)
 from nanosim.pipeline.scaleout import check_scheduler, open_executor, run_tasks
+from nanosim.pipeline.timings import record_timings
 
-__all__ = ["run_montecarlo", "run_chunk", "sample_plants", "summarize", "report_markdown"]
+__all__ = ["run_montecarlo", "run_chunk", "sample_plants", "summarize", "report_markdown", "sample_units"]
 
 SENSITIVITY_EXTRA = ("mode_1_hz", "xy_split_percent", "disk_margin_alpha")
 
@@ -111,7 +115,10 @@ def sample_plants(indices, seed: int, ctrl=None, mjcf=None, with_loop: bool = Tr
 
 
 def run_chunk(plan: dict, indices: list, engine: str, sink) -> list[dict]:
-    """Worker task: samples ``indices`` (plant records and experiments on ``engine``); JSON-ready records."""
+    """Worker task: samples ``indices`` (plant records and experiments on ``engine``); JSON-ready records.
+
+    Each record's ``seconds`` (the chunk's wall time per sample) is moved to ``timings.json`` by the driver.
+    """
     from nanosim import experiments
     from nanosim.design.lti import single_threaded_blas
     from nanosim.experiments.batch_suite import run_experiments_batch
@@ -135,6 +142,31 @@ def run_chunk(plan: dict, indices: list, engine: str, sink) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------ driver side
+def sample_units(tm, engine: str) -> dict:
+    """The ``units`` entry of a sample record: the tolerances' from the tolerance model ``tm``, the metrics'
+    (``metrics.json``'s suffixes) and, for the linear-twin records, the plant-level figures'.
+    """
+    from nanosim.pipeline.characterize import METRICS_UNITS
+
+    by_kind: dict = {}
+    for t in tm.tolerances:
+        by_kind.setdefault(t.name.partition(".")[0], {})[t.name] = "dimensionless factor" if t.unit == "-" else t.unit
+    tol = {}
+    for kind, units in by_kind.items():
+        if len(set(units.values())) == 1 and (len(units) > 1 or kind not in units):
+            tol[f"{kind}.*"] = next(iter(units.values()))
+        else:
+            tol.update(units)
+    out = {"metrics": dict(METRICS_UNITS)}
+    if engine == "twin":
+        out = {"tolerances": tol, **out, "modes_hz, *_freq_hz": "Hz", "damping_ratio": "damping ratio",
+               "static_gain_um_per_V": "um per controller V", "xy_split_percent": "%",
+               "spectral_radius": "|z| of the closed-loop poles",
+               "disk_margin_alpha": "disk-margin alpha, dimensionless (as robustness.json's *_alpha)",
+               "gain_margin_db": "dB", "phase_margin_deg": "degrees"}
+    return out
+
+
 def _sample_path(out: Path, sub: str, i: int) -> Path:
     return out / sub / A.mc_sample_json(i)
 
@@ -172,7 +204,8 @@ def _check_out(out: Path, plan: dict) -> None:
 
 def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = None, *, progress: bool = True,
                    say=None) -> dict:
-    """Run (or resume) a Monte Carlo into ``out``; returns ``summary.json``'s content.
+    """Run (or resume) a Monte Carlo into ``out``; returns ``summary.json``'s content with this run's wall
+    times (``timings``, ``wall_seconds``), which go to ``timings.json`` with each sample's ``seconds``.
 
     Parameters
     ----------
@@ -241,22 +274,31 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
                     f"{scale.description}, chunks of {size}")
                 units = len(names) + 1
 
-                def done(task, records, sub=sub):
-                    for rec in records:
-                        write_json(_sample_path(out, sub, rec["index"]), rec)
+                rec_units = sample_units(tm, engine)
+                seconds: dict = {}
 
-                run_tasks(scale, run_chunk, [(plan, c, engine) for c in _chunks(todo, size)], done,
-                          total_units=count * units, done_units=(count - len(todo)) * units,
-                          desc=f"montecarlo {engine}", progress=progress)
+                def done(task, records, sub=sub, rec_units=rec_units, seconds=seconds):
+                    for rec in records:
+                        path = _sample_path(out, sub, rec["index"])
+                        seconds[f"{sub}/{path.name}"] = {"seconds": rec.pop("seconds", None)}
+                        write_json(path, {**rec, "units": rec_units})
+
+                try:
+                    run_tasks(scale, run_chunk, [(plan, c, engine) for c in _chunks(todo, size)], done,
+                              total_units=count * units, done_units=(count - len(todo)) * units,
+                              desc=f"montecarlo {engine}", progress=progress)
+                finally:                    # the finished samples' times too when interrupted
+                    if seconds:
+                        record_timings(out, seconds)
             timings[f"{engine}_seconds"] = round(time.perf_counter() - t0, 2)
             timings[f"{engine}_samples_run"] = len(todo)
         summary = summarize(out, settings, spec, names, tm)
-        summary["timings"] = timings
-        summary["wall_seconds"] = round(time.perf_counter() - t_start, 2)
         write_json(out / A.SUMMARY_JSON, summary)
+        wall = {"timings": timings, "wall_seconds": round(time.perf_counter() - t_start, 2)}
+        record_timings(out, {A.SUMMARY_JSON: wall})
         write_text(out / A.REPORT_MD, report_markdown(summary))
         write_manifest(out, seed=settings.seed)
-    return summary
+    return {**summary, **wall}
 
 
 def _load(out: Path, sub: str, n: int) -> list[dict]:

@@ -190,12 +190,14 @@ def design_warnings(des: dict) -> list[str]:
     """
     out = []
     if des.get("discretization_within_1_percent") is False:
-        err = des.get("discretization_max_rel_error_below_500hz")
+        err = des.get("discretization_max_rel_error", des.get("discretization_max_rel_error_below_500hz"))
+        band = des.get("discretization_check_band_hz", 500.0)      # the key before the band had its own
         where = des.get("discretization_worst_freq_hz")
         out.append("Controller discretization: the discrete controller differs from the continuous one by "
                    + (f"{100 * err:.1f} %" if _num(err) else "more than 1 %")
                    + (f" (at {where:.0f} Hz)" if _num(where) else "")
-                   + f" below 500 Hz (limit {100 * DISCRETIZATION_MAX_REL_ERROR:g} %).")
+                   + (f" below {band:g} Hz" if _num(band) else "")
+                   + f" (limit {100 * DISCRETIZATION_MAX_REL_ERROR:g} %).")
     eo = des.get("Eo_max_dB_below_140Hz")
     if _num(eo) and eo > P.PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ:
         out.append(f"Model reduction: the relative reduction error reaches {eo:.1f} dB below 140 Hz "
@@ -363,7 +365,7 @@ def _blocks(run: Path):
     """The report as blocks: ("h", level, text), ("p", text), ("ul", items), ("table", header, rows, marks)."""
     rows = _rows(run)
     met, des = _load(run, A.METRICS_JSON), _load(run, A.DESIGN_JSON)
-    timing = _load(run, A.PIPELINE_JSON).get("stage_seconds", {})
+    timing = _stage_seconds(run)
     n_ok, n_band = pass_count(run)
     warnings = design_warnings(des)
     stairs = _staircase_rows(run)
@@ -413,6 +415,13 @@ def _blocks(run: Path):
     out.append(("h", 2, "Figures"))
     out += [("fig", title, rel) for title, rel in _figures(run)]
     return out
+
+
+def _stage_seconds(run: Path) -> dict:
+    """The pipeline's stage wall times: ``timings.json`` (or ``pipeline.json`` of a run folder written before it)."""
+    from nanosim.pipeline.timings import read_timings
+    return (read_timings(run, A.PIPELINE_JSON).get("stage_seconds")
+            or _load(run, A.PIPELINE_JSON).get("stage_seconds", {}))
 
 
 def _controllers_blocks(run: Path, des: dict) -> list:

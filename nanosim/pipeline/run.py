@@ -133,10 +133,10 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
     :func:`~nanosim.pipeline.characterize.run_characterize`, each run by
     :func:`~nanosim.experiments.batch_suite.run_experiments_batch` with exact products, which
     gives the single-stage numbers bit for bit (``tests/test_batch.py``, ``tests/test_batch_kernel.py``);
-    writes the same ``metrics.json`` and figures into ``out_dir``. The MuJoCo member steps with
-    one compiled call for its electronics per period instead of a dozen numpy calls; the twin
-    runs in the compiled loop. ``workers`` experiments run side by side (threads; MuJoCo steps
-    without the GIL).
+    writes the same ``metrics.json`` and figures into ``out_dir`` (the wall times into its
+    ``timings.json``). The MuJoCo member steps with one compiled call for its electronics per
+    period instead of a dozen numpy calls; the twin runs in the compiled loop. ``workers``
+    experiments run side by side (threads; MuJoCo steps without the GIL).
     """
     from nanosim import constants as C
     from nanosim import experiments
@@ -145,6 +145,7 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
     from nanosim.experiments.registry import ExperimentContext
     from nanosim.fileio import save_figure
     from nanosim.pipeline.characterize import METRICS_UNITS, make_factory, plant_description
+    from nanosim.pipeline.timings import record_timings
     from nanosim.plant.linearize import linearize
     from nanosim.plant.modes import modal_analysis
     from nanosim.plant.stage import Stage, StageConfig
@@ -176,11 +177,11 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
         exp = experiments.get(name)
         if exp.figure is not None and exp.figure_name:
             save_figure(exp.figure(res[name], ctx), out / exp.figure_name)
-    metrics["experiment_seconds"] = seconds
     metrics["plant"] = plant_description(twin)
     metrics["seed"] = seed
     metrics["units"] = dict(METRICS_UNITS)
     write_json(out / A.METRICS_JSON, metrics)
+    record_timings(out, {A.METRICS_JSON: {"experiment_seconds": seconds}})
     return metrics
 
 
@@ -280,7 +281,9 @@ def experiments_names() -> list:
 
 
 def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: bool = True) -> dict:
-    """Run every step into ``out`` (normally a staging folder); returns ``pipeline.json``'s content.
+    """Run every step into ``out`` (normally a staging folder); returns ``{"stage_seconds": ..., "seed": ...}``.
+
+    ``pipeline.json`` holds the seed; the stage wall times go to ``timings.json`` (under ``pipeline.json``).
 
     Independent work runs side by side on two worker processes: the modes beside the
     identification, the design as soon as ``model.npz`` exists (beside the second operating
@@ -377,11 +380,14 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     pool.join()
     from nanosim.pipeline.characterize import write_task_metrics
 
+    from nanosim.pipeline.timings import record_timings
+
     write_task_metrics(out, parts[False], cfg.seed)
     if twin_too:
-        write_task_metrics(out / A.TWIN_DIR, parts[True], cfg.seed, twin=True)
+        write_task_metrics(out / A.TWIN_DIR, parts[True], cfg.seed, twin=True, run_dir=out)
     timings["overlapped_wall"] = round(time.perf_counter() - t_start, 2)
-    write_json(out / A.PIPELINE_JSON, {"stage_seconds": timings, "seed": cfg.seed})   # the report reads it
+    write_json(out / A.PIPELINE_JSON, {"seed": cfg.seed})
+    record_timings(out, {A.PIPELINE_JSON: {"stage_seconds": timings}})    # the report reads it
     if bar:
         bar.set_postfix_str("running report")
     t0 = time.perf_counter()
@@ -389,6 +395,5 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     done("report", round(time.perf_counter() - t0, 2))
     if bar:
         bar.close()
-    result = {"stage_seconds": timings, "seed": cfg.seed}
-    write_json(out / A.PIPELINE_JSON, result)
-    return result
+    record_timings(out, {A.PIPELINE_JSON: {"stage_seconds": timings}})
+    return {"stage_seconds": timings, "seed": cfg.seed}

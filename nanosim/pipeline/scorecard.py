@@ -27,7 +27,8 @@ from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S
 from nanosim.pipeline import artifacts as A
 
 __all__ = ["Metric", "METRICS", "ACCEPTANCE", "DEFAULT_RULE", "flatten_metrics", "robustness_metrics", "scorecard",
-           "choose_default", "write_scorecard", "markdown_table", "run_acceptance", "format_value", "worst_of"]
+           "choose_default", "write_scorecard", "markdown_table", "run_acceptance", "format_value", "worst_of",
+           "PARAMETER_UNITS", "scorecard_units"]
 
 
 @dataclass(frozen=True)
@@ -113,6 +114,38 @@ DEFAULT_RULE = ("Among the bench designs, the default is the one that meets the 
                 "(mu < 1), then to the larger worst-case multiloop disk margin, then to the higher worst-case "
                 "feedback S bandwidth.")
 _BY_KEY = {m.key: m for m in METRICS}
+_ALPHA = "disk-margin alpha, dimensionless (as robustness.json's *_alpha)"
+# the metrics without a unit (Metric.unit ""): what their numbers are
+_UNITLESS = {"multiloop_disk_margin": _ALPHA, "disk_margin_input_output": _ALPHA,
+             "multiloop_disk_margin_twin": _ALPHA,
+             "mu_peak": "structured singular value, dimensionless (robustly stable if < 1)",
+             "peak_So": "largest singular value of S_o, dimensionless, absolute (not dB)"}
+# scorecard.json's "units" for the designs' own parameters (controllers/<name>/parameters)
+PARAMETER_UNITS = {
+    "*_hz, *_band_hz": "Hz (integral_gain_hz: the integrator's gain as a frequency)",
+    "*_V": "volts (controller V)", "*_nm": "nanometres", "*_s": "seconds", "*_samples": "samples of the control "
+    "period", "*order*": "states",
+    "gamma*": "dimensionless, absolute (H-infinity norm bound, not dB)",
+    "*disk_margin*, predicted_disk_margin/*, tried/*/multiloop_disk_margin": _ALPHA,
+    "*mu_peak": "structured singular value, dimensionless", "*zeta*": "damping ratio",
+    "*spectral_radius*": "|z| of the discrete closed-loop poles",
+    "*_rel_error": "fraction (0.01 = 1 %)",
+    "damped_peak_gain, open_loop_peak_gain": "sigma_max of G(z) G(1)^-1 with and without the PPF damping loop, "
+                                            "largest over peak_band_hz: a factor of the static gain, absolute "
+                                            "(not dB)",
+    "other numbers": "dimensionless factors (gains, ratios, weights, scales)",
+}
+
+
+def scorecard_units() -> dict:
+    """``scorecard.json``'s ``units``: every metric's (from :data:`METRICS`) and the parameters'."""
+    return {"metrics": {m.key: m.unit or _UNITLESS.get(m.key, "dimensionless") for m in METRICS},
+            "metrics_where": "controllers/<name>/seeds/<seed>/<key>, controllers/<name>/summary/<key>/{mean, std, "
+                             "min, max, worst} (n: a count), controllers/<name>/robustness/<key>, "
+                             "controllers/<name>/acceptance/<key>/worst",
+            "robustness/sampled_all_stable, sampled_parameter_set_stable": "true if every sampled member of the "
+                                                                          "uncertainty set gives a stable loop",
+            "parameters": dict(PARAMETER_UNITS)}
 
 
 def _num(x):
@@ -274,6 +307,7 @@ def scorecard(specs, per_seed: dict, robustness: dict, config, *, model_path=Non
     name, why = choose_default(doc)
     doc["default"] = name
     doc["default_reason"] = why
+    doc["units"] = scorecard_units()
     return doc
 
 

@@ -34,6 +34,7 @@ from nanosim.fileio import write_json, write_text
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline import mc_stats
 from nanosim.pipeline.config import PipelineConfig
+from nanosim.pipeline.timings import record_timings
 
 __all__ = ["parse_seeds", "run_pipeline_seeds"]
 
@@ -166,7 +167,8 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
                 if left[s] == 0:
                     write_task_metrics(_seed_dir(out, s), parts[s][False], s)
                     if cfg.characterize_twin_too:
-                        write_task_metrics(_seed_dir(out, s) / A.TWIN_DIR, parts[s][True], s, twin=True)
+                        write_task_metrics(_seed_dir(out, s) / A.TWIN_DIR, parts[s][True], s, twin=True,
+                                           run_dir=_seed_dir(out, s))
                     say(f"seed {s}: experiments done")
     except BaseException:
         stop_pool(pool)        # Ctrl-C or a failed task: stop the workers now
@@ -180,7 +182,8 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
 
 def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, progress: bool = True,
                        workers: int | None = None) -> dict:
-    """Run the pipeline for every seed into ``out`` (normally a staging folder); returns ``seeds.json``.
+    """Run the pipeline for every seed into ``out`` (normally a staging folder); returns ``seeds.json``'s
+    content with the wall times of ``timings.json`` (``stage_seconds``, ``wall_seconds``, ``task_seconds_all_seeds``).
 
     The modes are computed once (copied into every seed's folder); they and every seed's
     identification, design and experiments are tasks on one pool of worker processes
@@ -205,19 +208,22 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
     per_seed = {}
     for s in seeds:
         d = _seed_dir(out, s)
-        write_json(d / A.PIPELINE_JSON, {"stage_seconds": {"shared_with_other_seeds": timings,
-                                                           "task_seconds_all_seeds": task_seconds}, "seed": s})
+        write_json(d / A.PIPELINE_JSON, {"seed": s})
+        record_timings(d, {A.PIPELINE_JSON: {"stage_seconds": {"shared_with_other_seeds": timings,
+                                                               "task_seconds_all_seeds": task_seconds}}})
         write_report(d)
         ok, nb = pass_count(d)
         per_seed[s] = {"in_band": ok, "banded": nb, "metrics": _key_metrics(d),
                        "acceptance": run_acceptance_doc(d)}
     timings["report"] = round(time.perf_counter() - t, 2)
-    doc = _summary(seeds, per_seed, timings)
-    doc["task_seconds_all_seeds"] = task_seconds
+    doc = _summary(seeds, per_seed)
     write_json(out / A.SEEDS_JSON, doc)
-    write_json(out / A.PIPELINE_JSON, {"stage_seconds": timings, "seeds": list(seeds)})
-    write_text(out / A.REPORT_MD, _report(doc))
-    return doc
+    write_json(out / A.PIPELINE_JSON, {"seeds": list(seeds)})
+    wall = {"stage_seconds": timings, "wall_seconds": round(sum(timings.values()), 2),
+            "task_seconds_all_seeds": task_seconds}
+    record_timings(out, {A.SEEDS_JSON: wall, A.PIPELINE_JSON: {"stage_seconds": timings}})
+    write_text(out / A.REPORT_MD, _report(doc, timings))
+    return {**doc, **wall}
 
 
 def _key_metrics(run: Path) -> dict:
@@ -228,7 +234,7 @@ def _key_metrics(run: Path) -> dict:
     return {k: flat.get(k) for k in _KEY}
 
 
-def _summary(seeds, per_seed, timings) -> dict:
+def _summary(seeds, per_seed) -> dict:
     counts = [per_seed[s]["in_band"] for s in seeds]
     banded = [per_seed[s]["banded"] for s in seeds]
     rows = {}
@@ -242,8 +248,7 @@ def _summary(seeds, per_seed, timings) -> dict:
             "banded_per_seed": dict(zip(map(str, seeds), banded)),
             "in_band_mean": float(np.mean(counts)), "in_band_worst": int(min(counts)),
             "banded": int(max(banded)), "all_seeds_all_bands": all(c == b for c, b in zip(counts, banded)),
-            "metrics": rows, "stage_seconds": timings, "wall_seconds": round(sum(timings.values()), 2),
-            "acceptance": _acceptance_summary(seeds, per_seed)}
+            "metrics": rows, "acceptance": _acceptance_summary(seeds, per_seed)}
 
 
 def _acceptance_summary(seeds, per_seed) -> dict:
@@ -264,7 +269,7 @@ def _acceptance_summary(seeds, per_seed) -> dict:
             "measured": sum(1 for r in rows if r["every_seed"] is not None)}
 
 
-def _report(doc: dict) -> str:
+def _report(doc: dict, stage_seconds: dict) -> str:
     seeds = doc["seeds"]
     lines = [f"# nanosim pipeline, seeds {', '.join(map(str, seeds))}", "",
              f"**Checked quantities inside their bands: mean {doc['in_band_mean']:.1f} of {doc['banded']} over "
@@ -294,5 +299,5 @@ def _report(doc: dict) -> str:
             lines.append(f"| {r['label']} | {r['criterion']} | {vals} | "
                          f"{format_value(r['worst'], r['unit'], with_unit=True)} | {ok} |")
     lines += ["", "Stage wall times (s), all seeds: " + ", ".join(f"{k} {v:.1f}" for k, v in
-                                                                    doc["stage_seconds"].items()), ""]
+                                                                    stage_seconds.items()), ""]
     return "\n".join(lines)

@@ -18,7 +18,9 @@ least 0.5 for the whole loop (feedback operator ``I - PPF``, identified model wi
 loop's delay, nominally stable), over a grid of PPF settings ``(zeta_f, ratio, Gamma)``
 (each stable with a disk margin of at least 0.5 on its own) and tracking low-pass
 corners ``f_lp``. The damping the chosen PPF gives is reported as the peak of
-``sigma_max((I - Gd PPF)^-1 Gd G(1)^-1)`` between 100 and 600 Hz.
+``sigma_max((I - Gd PPF)^-1 Gd G(1)^-1)`` between 100 and 600 Hz (``damped_peak_gain``, beside
+``open_loop_peak_gain`` without the PPF loop; factors of the static gain, absolute, not dB; the band
+is ``peak_band_hz``).
 """
 from __future__ import annotations
 
@@ -59,6 +61,7 @@ PPF_RATIOS = (1.0, 1.2)
 PPF_GAINS = (0.05, 0.1, 0.2, 0.3, 0.5)
 LOWPASS_HZ = (150.0, 250.0)
 HIGHPASS_HZ = 10.0
+PEAK_BAND_HZ = (100.0, 600.0)     # where the damping is reported (open band)
 
 
 def ppf_loop(G0_inv, modes_hz, gain: float, zeta: float, ratio: float, dt: float = DT_S,
@@ -112,7 +115,7 @@ def design_damping_tracking(G, *, dt: float = DT_S, delay_samples: int = LOOP_DE
     fm = np.array(modes)
     P = freqresp_z(Gd, fm) @ G0_inv
     axis_modes = [float(fm[np.argmax(np.abs(P[:, i, i]))]) for i in range(G0.shape[0])]
-    band = (f > 100.0) & (f < 600.0)
+    band = (f > PEAK_BAND_HZ[0]) & (f < PEAK_BAND_HZ[1])
     Gdel = Gf * np.exp(-2j * np.pi * f * delay_samples * dt)[:, None, None]
     best = None
     for z, ratio, g in itertools.product(PPF_ZETAS, PPF_RATIOS, PPF_GAINS):
@@ -148,8 +151,8 @@ def design_damping_tracking(G, *, dt: float = DT_S, delay_samples: int = LOOP_DE
     Ke, Kyy = _stacked(_tracking(G0_inv, ki, flp, dt), Ky)
     r = loop_response(Gf, f, Ke, Kyy, delay_samples=delay_samples, dt=dt)
     params = {"ppf_axis_modes_hz": axis_modes, "ppf_gain": g, "ppf_zeta": z, "ppf_frequency_ratio": ratio,
-              "ppf_highpass_hz": HIGHPASS_HZ, "damped_peak_100_600hz": peak, "open_loop_peak_100_600hz":
-              float(np.linalg.norm((Gdel @ G0_inv)[band], 2, axis=(1, 2)).max()),
+              "ppf_highpass_hz": HIGHPASS_HZ, "peak_band_hz": list(PEAK_BAND_HZ), "damped_peak_gain": peak,
+              "open_loop_peak_gain": float(np.linalg.norm((Gdel @ G0_inv)[band], 2, axis=(1, 2)).max()),
               "integral_gain_hz": ki, "tracking_lowpass_hz": flp,
               "predicted_bandwidth_S_hz": sensitivity_bandwidth_hz(r),
               "predicted_disk_margin": disk_margin_summary(r), "loop_delay_samples": delay_samples}
