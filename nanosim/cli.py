@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from nanosim import __version__
+from nanosim.validation import named_message
 from nanosim import constants as C
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import (DEFAULT_ARCHITECTURE, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER,
@@ -73,20 +74,9 @@ def _file(text: str) -> str:
     return text
 
 
-def _named(name: str, exc: BaseException) -> str:
-    """One line naming the argument: ``"mjcf: x is not ..."`` -> ``"--mjcf: x is not ..."``."""
-    msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-    if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
-        msg = f"{msg}: {exc.filename}"
-    for prefix in (f"{name}: ", f"{name.lstrip('-')}: "):
-        if msg.startswith(prefix):
-            msg = msg[len(prefix):]
-    return f"{name}: {msg}"
-
-
 def _type_error(name: str, exc: BaseException) -> argparse.ArgumentTypeError:
     """An argparse type's error (argparse puts ``argument NAME:`` in front)."""
-    return argparse.ArgumentTypeError(_named(name, exc)[len(name) + 2:])
+    return argparse.ArgumentTypeError(named_message(name, exc)[len(name) + 2:])
 
 
 def _out_folder(name: str):
@@ -128,7 +118,7 @@ def _load_mjcf(path):
     try:
         return load_model(path)
     except (OSError, ValueError) as exc:
-        raise ValueError(_named("--mjcf", exc)) from None
+        raise ValueError(named_message("--mjcf", exc)) from None
 
 
 def _check_mjcf(args) -> None:
@@ -145,7 +135,7 @@ def _check_controller(path) -> Path:
     try:
         DiscreteController.from_npz(p, expected_dt=C.CONTROL_PERIOD_S)
     except (OSError, ValueError) as exc:
-        raise ValueError(_named("--controller", exc)) from None
+        raise ValueError(named_message("--controller", exc)) from None
     return p
 
 
@@ -164,7 +154,7 @@ def _check_model(path) -> Path:
     try:
         _, Gd = load_state_space_npz(p)
     except (OSError, ValueError) as exc:
-        raise ValueError(_named("--model", exc)) from None
+        raise ValueError(named_message("--model", exc)) from None
     if Gd is not None and not math.isclose(float(Gd.dt), C.CONTROL_PERIOD_S, rel_tol=1e-9):
         raise ValueError(f"--model: expected a discrete model at the loop's period dt = {C.CONTROL_PERIOD_S:g} s, "
                          f"got dt = {float(Gd.dt)!r} s in {str(p)!r}")
@@ -179,7 +169,7 @@ def _check_weights(path):
     try:
         Weights.coerce(path).check()
     except (OSError, ValueError) as exc:
-        msg = _named("--weights", exc)[len("--weights: "):]
+        msg = named_message("--weights", exc)[len("--weights: "):]
         where = "" if str(path) in msg else f"{str(path)!r}: "           # name the file that arrived
         raise ValueError(f"--weights: {where}{msg}") from None
     return path

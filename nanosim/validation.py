@@ -3,7 +3,25 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["as_finite_array"]
+__all__ = ["as_finite_array", "named_message"]
+
+
+def named_message(name: str, error, *, aliases: tuple = (), empty: str | None = None) -> str:
+    """One line naming the argument ``name``: ``"mjcf: x is not ..."`` -> ``"--mjcf: x is not ..."``.
+
+    ``error`` is an exception or a message. Its first line is kept, without a leading ``name:``,
+    ``name`` without its dashes, or any of ``aliases``; an ``OSError``'s file name is added when the
+    message lacks it. An empty message becomes ``empty`` (default: the exception's type name).
+    """
+    text = str(error).strip()
+    fallback = empty if empty is not None else (type(error).__name__ if isinstance(error, BaseException) else "")
+    msg = text.splitlines()[0] if text else fallback
+    if isinstance(error, OSError) and error.filename and str(error.filename) not in msg:
+        msg = f"{msg}: {error.filename}"
+    for prefix in (name, name.lstrip("-"), *aliases):
+        if msg.startswith(f"{prefix}: "):
+            msg = msg[len(prefix) + 2:]
+    return f"{name}: {msg}"
 
 
 def as_finite_array(name: str, value, shape: tuple | None = None, ndim: int | None = None) -> np.ndarray:

@@ -56,11 +56,10 @@ from nanosim.design.loopresponse import (
 )
 from nanosim.design.margins import refine_mu_peak
 from nanosim.design.mu import mixed_mu_upper_bound
-from nanosim.design.uncertainty import STAGE_UNCERTAINTY, ModalPlant
+from nanosim.design.uncertainty import STAGE_MU_RANGES as _STAGE_RANGES
+from nanosim.design.uncertainty import ModalPlant
 
 SAME_MODE_REL = 0.003
-# the default set of parametric_lft and robust_stability_mixed_mu: the stage's (no nominal delay)
-_STAGE_RANGES = STAGE_UNCERTAINTY.mu_kwargs(0)
 
 __all__ = ["SAME_MODE_REL", "ModalMerge", "merge_modes", "ParametricLFT", "MixedRobustStabilityResult",
            "parametric_lft", "mode_band_grid", "robust_stability_mixed_mu"]

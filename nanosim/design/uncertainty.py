@@ -37,8 +37,8 @@ from nanosim.design.lti import sigma_max
 from nanosim.design.margins import refine_mu_peak
 from nanosim.design.mu import mu_upper_bound
 
-__all__ = ["UncertaintySet", "STAGE_UNCERTAINTY", "MODE_ZETA_MAX", "MODE_MAX_HZ", "RobustStabilityResult", "ModalPlant",
-           "perturbed_plant", "robust_stability_mu"]
+__all__ = ["UncertaintySet", "STAGE_UNCERTAINTY", "STAGE_MU_RANGES", "MODE_ZETA_MAX", "MODE_MAX_HZ",
+           "RobustStabilityResult", "ModalPlant", "perturbed_plant", "robust_stability_mu"]
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class UncertaintySet:
 STAGE_UNCERTAINTY = UncertaintySet()
 # STAGE_UNCERTAINTY as the keyword arguments of robust_stability_mu (and of nanosim.design.parametric's
 # parametric_lft and robust_stability_mixed_mu) for a loop without nominal delay: their defaults
-_STAGE_RANGES = STAGE_UNCERTAINTY.mu_kwargs(0)
+STAGE_MU_RANGES = STAGE_UNCERTAINTY.mu_kwargs(0)
 # Complex poles damped more than this, or above this frequency, are not the stage's structural modes
 # (176-738 Hz; filters, creep fits): the uncertainty set leaves them alone.
 MODE_ZETA_MAX = 0.3
@@ -337,10 +337,10 @@ class RobustStabilityResult:
 
 
 def robust_stability_mu(G_nominal, K, Ky, dt, freq_hz, *,
-                        input_gain_range=_STAGE_RANGES["input_gain_range"],
-                        freq_scale_range=_STAGE_RANGES["freq_scale_range"],
-                        damping_scale_range=_STAGE_RANGES["damping_scale_range"],
-                        delay_samples_range=_STAGE_RANGES["delay_samples_range"], nominal_delay_samples: int = 0,
+                        input_gain_range=STAGE_MU_RANGES["input_gain_range"],
+                        freq_scale_range=STAGE_MU_RANGES["freq_scale_range"],
+                        damping_scale_range=STAGE_MU_RANGES["damping_scale_range"],
+                        delay_samples_range=STAGE_MU_RANGES["delay_samples_range"], nominal_delay_samples: int = 0,
                         n_levels: int = 3, n_random: int = 24, seed: int = 0,
                         keep_dc_gain: bool = True, refine: bool = True,
                         pade_order: int = 3) -> RobustStabilityResult:

@@ -39,7 +39,9 @@ from nanosim.fileio import save_figure, write_json, write_npz
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import CompareConfig
 from nanosim.pipeline.scorecard import scorecard, write_scorecard
+from nanosim.pipeline.runfolder import run_relative
 from nanosim.pipeline.timings import record_timings
+from nanosim.validation import named_message
 
 __all__ = ["feedback_sensitivity", "FeedbackSensitivity", "run_compare", "resolve_model", "check_controllers",
            "check_only"]
@@ -136,15 +138,6 @@ def resolve_model(model, out: Path, seed: int, mjcf=None, progress=None):
     return Gd, p
 
 
-def _named(name: str, msg: str) -> str:
-    """``"controller: no such file 'x'"`` -> ``"--controllers: no such file 'x'"``."""
-    msg = msg.strip().splitlines()[0] if msg.strip() else "cannot be loaded"
-    for bare in (f"{name}: ", "controller: ", "controllers: "):
-        if msg.startswith(bare):
-            msg = msg[len(bare):]
-    return f"{name}: {msg}"
-
-
 def check_controllers(controllers) -> None:
     """Every ``--controllers`` entry loadable, before any work or progress output (``ValueError``).
 
@@ -167,7 +160,8 @@ def check_controllers(controllers) -> None:
                 verify_input_file(c, "--controllers")
             labels.append(load_controller(c, None).name)
         except ValueError as exc:
-            raise ValueError(_named("--controllers", str(exc))) from None
+            raise ValueError(named_message("--controllers", exc, aliases=("controller",),
+                                            empty="cannot be loaded")) from None
         except Exception as exc:            # noqa: BLE001 -- a user's module failing to import or run
             raise ValueError(f"--controllers: {c!r} failed to load: {type(exc).__name__}: {exc}") from None
     dup = sorted({x for x in labels if labels.count(x) > 1})
@@ -319,23 +313,12 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
                 so_bw[spec.name] = sensitivity_bandwidth_hz(analyses[spec.name])
     for name, fig in compare_figures(first_results, analyses).items():
         save_figure(fig, out / name)
-    doc = scorecard(specs, per, robustness, config, model_path=_model_ref(model_path, out), So_bandwidths=so_bw)
+    doc = scorecard(specs, per, robustness, config, So_bandwidths=so_bw,
+                    model_path=None if model_path is None else run_relative(model_path, out))
     write_scorecard(out, doc)
     seconds[A.SCORECARD_JSON] = {"seconds": round(time.perf_counter() - t0, 1)}
     record_timings(out, seconds)
     return doc
-
-
-def _model_ref(model_path, out: Path):
-    """The identified model's path as ``scorecard.json`` records it: relative to the run folder when it lies
-    inside it (``identified/model.npz``: the folder may be a staging folder renamed at the end), else as given.
-    """
-    if model_path is None:
-        return None
-    try:
-        return Path(model_path).resolve().relative_to(out.resolve()).as_posix()
-    except ValueError:
-        return model_path
 
 
 def _is_bench(spec: str) -> bool:

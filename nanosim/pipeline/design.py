@@ -250,13 +250,8 @@ def _input_ref(path, out_dir) -> dict:
     Its path is relative to the run folder when it lies inside it (the run folder may be a staging
     folder renamed at the end), else absolute.
     """
-    from nanosim.pipeline.runfolder import sha256_file
-    p = Path(path).resolve()
-    try:
-        where = str(p.relative_to(Path(out_dir).resolve()))
-    except ValueError:
-        where = str(p)
-    return {"path": where, "sha256": sha256_file(p)}
+    from nanosim.pipeline.runfolder import run_relative, sha256_file
+    return {"path": run_relative(path, out_dir), "sha256": sha256_file(Path(path))}
 
 
 @single_threaded_blas

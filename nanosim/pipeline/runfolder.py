@@ -24,7 +24,7 @@ from nanosim.fileio import write_json
 from nanosim.pipeline.artifacts import MANIFEST_JSON
 
 __all__ = ["RunFolderError", "MANIFEST_JSON", "SealedRun", "check_writable", "staged_run", "writer_lock",
-           "write_manifest", "verify_manifest", "sealed_run", "verify_input_file", "sha256_file"]
+           "write_manifest", "verify_manifest", "sealed_run", "verify_input_file", "sha256_file", "run_relative"]
 
 
 class RunFolderError(ValueError):
@@ -87,6 +87,19 @@ def _remove_empty(folders: list[Path]) -> None:
             p.rmdir()
         except OSError:
             return
+
+
+def run_relative(path: str | os.PathLike, run_dir: str | os.PathLike) -> str:
+    """``path`` as a run folder's files record it.
+
+    Relative to ``run_dir`` when it lies inside it (the run folder may be a staging folder renamed
+    at the end), else absolute.
+    """
+    p = Path(path).resolve()
+    try:
+        return p.relative_to(Path(run_dir).resolve()).as_posix()
+    except ValueError:
+        return str(p)
 
 
 def sha256_file(path: Path) -> str:
