@@ -25,7 +25,7 @@ from nanosim.plant.stage import Stage, StageConfig
 from nanosim.plant.twin import TwinStage
 
 __all__ = ["make_factory", "run_characterize", "experiment_task", "write_task_metrics", "METRICS_UNITS",
-           "plant_description"]
+           "plant_description", "write_metrics"]
 
 # metrics.json's "units": the unit suffixes of its keys
 METRICS_UNITS = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
@@ -159,11 +159,7 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
         metrics.update(exp.metrics(results[name]))
         if exp.figure is not None and exp.figure_name:
             save_figure(exp.figure(results[name], context()), out / exp.figure_name)
-    metrics["plant"] = plant_description(cfg.twin)
-    metrics["seed"] = cfg.seed
-    metrics["units"] = dict(METRICS_UNITS)
-    write_json(out / A.METRICS_JSON, metrics)
-    record_timings(out, {A.METRICS_JSON: {"experiment_seconds": _in_registry_order(timing, known)}})
+    write_metrics(out, metrics, twin=cfg.twin, seed=cfg.seed, seconds=_in_registry_order(timing, known))
     return metrics
 
 
@@ -225,11 +221,18 @@ def write_task_metrics(out_dir, parts, seed: int, twin: bool = False, run_dir=No
         if name not in parts:
             raise ValueError(f"parts: expected a result for every registered experiment, {name!r} is missing")
         metrics.update(parts[name][0])
+    return write_metrics(out_dir, metrics, twin=twin, seed=seed,
+                         seconds={name: parts[name][1] for name in experiments.load_builtin()}, run_dir=run_dir)
+
+
+def write_metrics(out_dir, metrics: dict, *, twin: bool, seed: int, seconds: dict, run_dir=None) -> dict:
+    """Write ``metrics`` with its ``plant``, ``seed`` and ``units`` as ``out_dir/metrics.json``; the experiments'
+    ``seconds`` go to the ``timings.json`` of ``run_dir`` (default ``out_dir``). Returns ``metrics``.
+    """
     metrics["plant"] = plant_description(twin)
     metrics["seed"] = seed
     metrics["units"] = dict(METRICS_UNITS)
     path = write_json(Path(out_dir) / A.METRICS_JSON, metrics)
     root = Path(out_dir if run_dir is None else run_dir)
-    record_timings(root, {path.relative_to(root).as_posix():
-                          {"experiment_seconds": {name: parts[name][1] for name in experiments.load_builtin()}}})
+    record_timings(root, {path.relative_to(root).as_posix(): {"experiment_seconds": seconds}})
     return metrics

@@ -144,8 +144,7 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
     from nanosim.experiments.batch_suite import MemberPlant, run_experiments_batch
     from nanosim.experiments.registry import ExperimentContext
     from nanosim.fileio import save_figure
-    from nanosim.pipeline.characterize import METRICS_UNITS, make_factory, plant_description
-    from nanosim.pipeline.timings import record_timings
+    from nanosim.pipeline.characterize import make_factory, write_metrics
     from nanosim.plant.linearize import linearize
     from nanosim.plant.modes import modal_analysis
     from nanosim.plant.stage import Stage, StageConfig
@@ -177,11 +176,7 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
         exp = experiments.get(name)
         if exp.figure is not None and exp.figure_name:
             save_figure(exp.figure(res[name], ctx), out / exp.figure_name)
-    metrics["plant"] = plant_description(twin)
-    metrics["seed"] = seed
-    metrics["units"] = dict(METRICS_UNITS)
-    write_json(out / A.METRICS_JSON, metrics)
-    record_timings(out, {A.METRICS_JSON: {"experiment_seconds": seconds}})
+    write_metrics(out, metrics, twin=twin, seed=seed, seconds=seconds)
     return metrics
 
 
