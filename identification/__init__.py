@@ -23,13 +23,14 @@ from .fit import fit_percent
 from .freq import H1Estimate, frequency_response, h1_estimate
 from .modal import Modes, continuous_poles, modes_from_model
 from .residual import ResidualSpectrum, input_referred_residual
-from .signals import Excitation, Spectrum, paper_excitation, prbs, prbs_hold_samples, signal_spectrum
+from .signals import Excitation, Spectrum, paper_excitation, prbs, prbs_channels, prbs_hold_samples, signal_spectrum
 from .shared_poles import LIGHT_DAMPING, SharedPoles, refine_shared_poles, shared_pole_groups
 from .simulation import estimate_x0, predict, simulate
 from .subspace import IdentifiedModel, default_horizon, select_order, subspace_id
 
 __all__ = [
     "prbs",
+    "prbs_channels",
     "prbs_hold_samples",
     "paper_excitation",
     "Excitation",

@@ -23,7 +23,8 @@ from scipy import signal as _sig
 
 from .checks import as_signal, frozen_array, nonneg_float, positive_float, positive_int, welch_segment_length
 
-__all__ = ["prbs", "prbs_hold_samples", "paper_excitation", "Excitation", "signal_spectrum", "Spectrum"]
+__all__ = ["prbs", "prbs_channels", "prbs_hold_samples", "paper_excitation", "Excitation", "signal_spectrum",
+           "Spectrum"]
 
 
 def prbs_hold_samples(band_hz: float, *, fs: float) -> int:
@@ -101,6 +102,48 @@ def prbs(n_samples: int, band_hz: float, *, fs: float, amplitude: float = 1.0, s
     chips = _sig.max_len_seq(nbits, state=state, length=n_chips)[0]
     u = amplitude * (2.0 * chips.astype(float) - 1.0)
     return u[np.arange(n_samples) // hold]            # each chip held ``hold`` samples (never more than needed)
+
+
+def prbs_channels(n_samples: int, band_hz: float, *, fs: float, n_channels: int, amplitude: float = 1.0,
+                  seed=0) -> np.ndarray:
+    """``n_channels`` simultaneous PRBS for a MIMO experiment: disjoint stretches of one MLS.
+
+    Independent calls of :func:`prbs` give cyclic shifts of the *same* MLS, so two channels whose
+    shifts happen to be close are one signal delayed: at frequencies below about one over that delay
+    their cross-spectrum is nearly the auto-spectrum, the input spectral matrix of a MIMO H1 estimate
+    is nearly singular and the estimate is biased there. Here the channels are consecutive,
+    non-overlapping stretches of one sequence (the register is long enough for all of them), so no
+    channel repeats another at any lag within the record.
+
+    Parameters
+    ----------
+    n_samples, band_hz, fs, amplitude : as :func:`prbs`.
+    n_channels : int
+        Number of channels (>= 1).
+    seed : int, numpy.random.SeedSequence or numpy.random.Generator, default 0
+        Selects the initial register state. Same seed -> same signals.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_samples, n_channels)
+        Values in ``{-amplitude, +amplitude}``.
+    """
+    n_samples = positive_int("n_samples", n_samples)
+    n_channels = positive_int("n_channels", n_channels)
+    amplitude = positive_float("amplitude", amplitude)
+    hold = prbs_hold_samples(band_hz, fs=fs)
+    n_chips = -(-n_samples // hold)
+    nbits = max(2, int(np.ceil(np.log2(n_channels * n_chips + 1))))
+    if nbits > 32:
+        raise ValueError(f"n_samples: expected at most {hold * ((2**32 - 1) // n_channels)} samples for this band "
+                         f"and {n_channels} channels, got {n_samples}")
+    rng = np.random.default_rng(_seed_sequence(seed))
+    state = rng.integers(0, 2, size=nbits)
+    if not state.any():
+        state[rng.integers(nbits)] = 1
+    chips = _sig.max_len_seq(nbits, state=state, length=n_channels * n_chips)[0].reshape(n_channels, n_chips).T
+    u = amplitude * (2.0 * chips.astype(float) - 1.0)
+    return u[np.arange(n_samples) // hold]
 
 
 def _seed_sequence(seed) -> np.random.SeedSequence:

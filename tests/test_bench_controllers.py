@@ -183,10 +183,15 @@ def test_readme_pid_and_a_bench_design_run_through_nanosim_compare(tmp_path):
         assert set(c["acceptance"]) == set(ACCEPTANCE), name
     pid_m = doc["controllers"]["my_pid:make"]["summary"]
     paper = doc["controllers"]["paper"]["summary"]
-    # the PID ran: a finite measured bandwidth (a slow one: no notches keep its gain below the 176 Hz mode)
-    assert 0.1 < pid_m["bandwidth_T_hz"]["mean"] < paper["bandwidth_T_hz"]["mean"]
-    # both S measurements agree for the paper's one-degree-of-freedom loop (r -> e is the loop's S)
-    assert paper["bandwidth_S_feedback_hz"]["mean"] == pytest.approx(paper["bandwidth_S_hz"]["mean"], rel=0.15)
+    # the PID ran, slowly (no notch: its gain stays below the 176 Hz mode's): its crossover is about 1 Hz, at or
+    # below the record's lowest bin (1.95 Hz), where its T is 0.5-0.9 on seeds 0-2 of the twin; so the -3 dB
+    # crossing is near 2 Hz or below the band (null)
+    pid_bw = pid_m["bandwidth_T_hz"]["mean"]
+    assert pid_bw is None or 0.1 < pid_bw < 5.0
+    assert paper["bandwidth_T_hz"]["mean"] > 40.0
+    # both S measurements agree for the paper's one-degree-of-freedom loop (r -> e is the loop's S): on the
+    # twin, seeds 0-5, the crossings within 1.6 % and the curves within 0.12 dB rms over 8-40 Hz
+    assert paper["bandwidth_S_feedback_hz"]["mean"] == pytest.approx(paper["bandwidth_S_hz"]["mean"], rel=0.03)
     assert doc["controllers"]["my_pid:make"]["robustness"]["mu_peak"] is None          # an object: no matrices
     assert doc["controllers"]["paper"]["robustness"]["multiloop_disk_margin"] > 0.4
     assert doc["default"] == "paper"                                    # the only bench design

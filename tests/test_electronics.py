@@ -207,17 +207,49 @@ def test_run_equals_repeated_step_bitwise():
     assert_array_equal(r.clipped, np.array([x.clipped for x in rs]))
 
 
-def test_same_master_seed_gives_independent_streams():
+@pytest.mark.parametrize("seed", [7, np.random.SeedSequence(7)], ids=["int", "SeedSequence"])
+def test_same_master_seed_gives_independent_streams(seed):
+    # |rho| of two independent records of 60000 samples: sd 0.004, so 0.03 is 7 sd
     cfg = ElectronicsConfig.ideal(dac_noise=True, sensor_noise=True)
     n = 20_000
-    act = ActuatorChain(cfg, PiezoConfig.linear(), seed=7).run(np.zeros((n, 3))).u_dac_V
-    sen = SensorChain(cfg, seed=7).run(np.zeros((n, 3))).reading_um
+    act = ActuatorChain(cfg, PiezoConfig.linear(), seed=seed).run(np.zeros((n, 3))).u_dac_V
+    sen = SensorChain(cfg, seed=seed).run(np.zeros((n, 3))).reading_um
     rho = np.corrcoef(act.ravel(), sen.ravel())[0, 1]
     assert abs(rho) < 0.03
-    ss = np.random.SeedSequence(123)
-    assert child_seed(ss, 0) is ss
     with pytest.raises(ValueError, match="seed"):
         child_seed(-1, 0)
+
+
+def test_child_seed_of_a_seed_sequence_is_its_spawned_child_without_advancing_it():
+    ss = np.random.SeedSequence(123)
+    kids = np.random.SeedSequence(123).spawn(3)
+    for k in (2, 0, 1):
+        assert_array_equal(child_seed(ss, k).generate_state(4), kids[k].generate_state(4))
+    assert ss.n_children_spawned == 0
+
+
+def test_stream_seeds_are_distinct_per_seed_purpose_and_index():
+    # the defect this replaces: run seed s's second stream was seed s + 1's first
+    from nanosim.plant.noise import stream_seed
+    purposes = ("bandwidth", "creep", "hysteresis", "resolution", "identification", "identification.excitation")
+    seeds = {(s, p, k): stream_seed(s, p, k) for s in range(50) for p in purposes for k in range(6)}
+    assert len(set(seeds.values())) == len(seeds)
+    assert all(0 <= v < 2 ** 63 for v in seeds.values())
+    assert stream_seed(3, "creep", 1) == stream_seed(np.int64(3), "creep", np.int64(1))
+    # a stage built from s's stream 1 and one from s + 1's stream 0 draw uncorrelated DAC noise
+    cfg = ElectronicsConfig.ideal(dac_noise=True)
+    n = 20_000
+    a = ActuatorChain(cfg, PiezoConfig.linear(), seed=stream_seed(4, "creep", 1)).run(np.zeros((n, 3))).u_dac_V
+    b = ActuatorChain(cfg, PiezoConfig.linear(), seed=stream_seed(5, "creep", 0)).run(np.zeros((n, 3))).u_dac_V
+    assert abs(np.corrcoef(a.ravel(), b.ravel())[0, 1]) < 0.03
+
+
+@pytest.mark.parametrize("args, name", [((-1, "x"), "seed"), ((1.5, "x"), "seed"), ((True, "x"), "seed"),
+                                        ((0, ""), "purpose"), ((0, 3), "purpose"), ((0, "x", -1), "index")])
+def test_stream_seed_rejects_bad_input(args, name):
+    from nanosim.plant.noise import stream_seed
+    with pytest.raises(ValueError, match=f"^{name}: expected"):
+        stream_seed(*args)
 
 
 # --- errors -------------------------------------------------------------------

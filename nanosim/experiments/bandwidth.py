@@ -19,6 +19,7 @@ from nanosim.experiments.loop import (
 from nanosim.experiments.registry import Experiment, register
 from nanosim.paper import PAPER_STEP_UM
 from nanosim.plant.linearize import linearize
+from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_bandwidth
 
 __all__ = ["BandwidthResult", "bandwidth", "predicted_loop", "PRBS_DURATION_S", "PRBS_AMPLITUDE_UM"]
@@ -52,8 +53,9 @@ def bandwidth(factory: StageFactory, controller, seed=0, duration_s=PRBS_DURATIO
     identification experiment: the hysteretic actuator's gain depends on amplitude.
     """
     n = int(duration_s * FS)
-    ref = np.stack([ident.prbs(n, 800.0, fs=FS, amplitude=amplitude_um, seed=seed * 10 + i) for i in range(3)], 1)
-    cl = run_closed_loop(factory(seed), controller, ref)
+    ref = ident.prbs_channels(n, 800.0, fs=FS, n_channels=3, amplitude=amplitude_um,
+                              seed=stream_seed(seed, "bandwidth.reference"))
+    cl = run_closed_loop(factory(stream_seed(seed, "bandwidth", 0)), controller, ref)
     est_T = ident.h1_estimate(ref, cl.y_um, fs=FS, nperseg=2048)
     f = est_T.freq_hz
     band = (f >= 1.0) & (f <= 1000.0)
@@ -68,7 +70,7 @@ def bandwidth(factory: StageFactory, controller, seed=0, duration_s=PRBS_DURATIO
     ns = int(0.3 * FS)
     sref = np.zeros((ns + int(0.01 * FS), 3))
     sref[int(0.01 * FS):, 0] = step_um
-    stp = run_closed_loop(factory(seed + 1), controller, sref)
+    stp = run_closed_loop(factory(stream_seed(seed, "bandwidth", 1)), controller, sref)
     k0 = int(0.01 * FS)
     t = stp.t_s[k0:] - stp.t_s[k0]
     y = stp.y_um[k0:, 0] - stp.y_um[:k0, 0].mean()

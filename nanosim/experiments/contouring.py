@@ -16,6 +16,7 @@ from nanosim.experiments.loop import (
 )
 from nanosim.experiments.registry import Experiment, register
 from nanosim.paper import PAPER_CONTOUR_SPEED_UM_S
+from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_contouring
 
 __all__ = ["ContourCase", "contour_reference", "contouring"]
@@ -53,7 +54,7 @@ def contouring(factory: StageFactory, controller, seed=0,
     for v in speeds_um_s:
         ref = contour_reference(v)
         controller.reset()
-        cl = run_closed_loop(factory(seed), controller, ref)
+        cl = run_closed_loop(factory(stream_seed(seed, "contouring")), controller, ref)
         x, y = cl.y_um[:, 0], cl.y_um[:, 1]
         moving = (ref[:, 0] > 0.5) & (ref[:, 0] < 19.5)
         d = np.abs(x - y)[moving] / np.sqrt(2) * 1e3          # distance to the 45 degree path

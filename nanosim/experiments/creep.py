@@ -8,6 +8,7 @@ import numpy as np
 from nanosim.artifact_names import FIG15_CREEP
 from nanosim.experiments.loop import FS, StageFactory, run_closed_loop
 from nanosim.experiments.registry import Experiment, register
+from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_creep
 from nanosim.ramps import raised_cosine
 
@@ -34,14 +35,14 @@ def _drift_nm(y, n_after):
 def creep(factory: StageFactory, controller, G0_um_per_V, seed=0, hold_s=10.0) -> CreepResult:
     """Move to the origin and hold: open loop through inv(G0), and closed loop."""
     n_move, n_hold = int(0.1 * FS), int(hold_s * FS)
-    st = factory(seed)
+    st = factory(stream_seed(seed, "creep", 0))
     home = st.sensors.step(st.table_um).reading_um if hasattr(st, "sensors") else np.zeros(3)
     v0 = np.linalg.solve(G0_um_per_V, -home)
     w = raised_cosine(n_move)
     u = np.vstack([w[:, None] * v0, np.tile(v0, (n_hold, 1))])
     tr = st.run(u)
     y_open = tr.sensor_um[n_move:]
-    cl = run_closed_loop(factory(seed + 1), controller, np.zeros((n_hold, 3)), settle_s=0.1)
+    cl = run_closed_loop(factory(stream_seed(seed, "creep", 1)), controller, np.zeros((n_hold, 3)), settle_s=0.1)
     n_after = int(0.5 * FS)
     return CreepResult(t_s=np.arange(n_hold) / FS, open_y_um=y_open, closed_y_um=cl.y_um,
                        open_drift_nm=_drift_nm(y_open, n_after), closed_drift_nm=_drift_nm(cl.y_um, n_after),

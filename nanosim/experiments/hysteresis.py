@@ -14,6 +14,7 @@ from nanosim.experiments.loop import (
     run_closed_loop,
 )
 from nanosim.experiments.registry import Experiment, register
+from nanosim.plant.noise import stream_seed
 from nanosim.plant.piezo import loop_hysteresis_percent
 from nanosim.plots.experiments import fig_hysteresis
 
@@ -60,14 +61,14 @@ def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel
     tri = np.concatenate([np.linspace(0, 1, n // 2), np.linspace(1, 0, n - n // 2)])
     u = np.zeros((n, 3))
     u[:, 0] = 1.65 * tri
-    tr = factory(seed).run(u)
+    tr = factory(stream_seed(seed, "hysteresis", 0)).run(u)
     y = tr.sensor_um - tr.sensor_um[0]
     travel = y[n // 2 - 1]
     out_pct, in_pct = loop_hysteresis_percent(u[:, 0], np.sign(travel[0]) * y[:, 0])
     ref = np.zeros((n, 3))
     ref[:, 0] = travel_um * tri
     controller.reset()
-    cl = run_closed_loop(factory(seed + 1), controller, ref)
+    cl = run_closed_loop(factory(stream_seed(seed, "hysteresis", 1)), controller, ref)
     lag_nm = _branch_gap(ref[:, 0], cl.y_um[:, 0]) * 1e3
     lv = np.linspace(0, travel_um, levels)
     seq = np.concatenate([lv, lv[-2::-1]])
@@ -75,7 +76,7 @@ def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel
     sref = np.zeros((len(seq) * nd, 3))
     sref[:, 0] = np.repeat(seq, nd)
     controller.reset()
-    st = run_closed_loop(factory(seed + 2), controller, sref)
+    st = run_closed_loop(factory(stream_seed(seed, "hysteresis", 2)), controller, sref)
     settled, _ = plateaus(st.y_um[:, 0], nd, len(seq))
     up, down = settled[:levels], settled[levels - 1:][::-1]
     gap_nm = float(np.abs(up - down).max() * 1e3)

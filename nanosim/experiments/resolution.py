@@ -19,6 +19,7 @@ from nanosim.artifact_names import FIG16_RESOLUTION
 from nanosim.experiments.loop import FS, StageFactory, run_closed_loop
 from nanosim.experiments.registry import Experiment, register
 from nanosim.plant.floor import FloorConfig
+from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_resolution
 
 __all__ = ["ResolutionResult", "resolution", "noise_sources", "noise_budget"]
@@ -101,12 +102,12 @@ def resolution(factory: StageFactory, controller, seed=0, duration_s=4.0, axis=0
     (2 s closed-loop records, one source at a time).
     """
     n = int(duration_s * FS)
-    st = factory(seed)
+    st = factory(stream_seed(seed, "resolution", 0))
     st.run(np.zeros((int(0.3 * FS), 3)))
     tr = st.run(np.zeros((n, 3)))
     y_open = tr.sensor_um[:, axis] * 1e3
     controller.reset()
-    stc = factory(seed + 1)
+    stc = factory(stream_seed(seed, "resolution", 1))
     cl = run_closed_loop(stc, controller, np.zeros((n, 3)))
     y_closed = cl.y_um[:, axis] * 1e3
     so, so2, so3 = _bands(y_open)
@@ -117,7 +118,7 @@ def resolution(factory: StageFactory, controller, seed=0, duration_s=4.0, axis=0
              "closed_loop": float(cl.table_um[:, axis].std() * 1e3)}
     bud = {}
     if budget and hasattr(stc, "variant"):
-        bud = noise_budget(stc, controller, seed=seed + 1, axis=axis)
+        bud = noise_budget(stc, controller, seed=stream_seed(seed, "resolution", 1), axis=axis)
         tot = {k: sum(r[f"{k}_nm"] ** 2 for r in bud.values()) for k in ("sensor", "table")}
         bud = {"sources": bud, "record_s": 2.0,
                "budget_sum_over_total": {"sensor": float(np.sqrt(tot["sensor"]) / sc) if sc else 0.0,

@@ -14,6 +14,7 @@ from nanosim.experiments.loop import (
     run_closed_loop,
 )
 from nanosim.experiments.registry import Experiment, register
+from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_small_steps
 
 __all__ = ["SmallStepsResult", "small_steps"]
@@ -36,7 +37,7 @@ def small_steps(factory: StageFactory, controller, seed=0, step_nm=10.0, n_steps
     targets = step_nm * np.arange(n_steps + 1)
     ref = np.zeros(((n_steps + 1) * nd, 3))
     ref[:, axis] = np.repeat(targets, nd) * 1e-3
-    cl = run_closed_loop(factory(seed), controller, ref)
+    cl = run_closed_loop(factory(stream_seed(seed, "small_steps")), controller, ref)
     means, sig = plateaus(cl.y_um[:, axis] * 1e3, nd, n_steps + 1)
     means = means - means[0]
     return SmallStepsResult(trace=cl, targets_nm=targets, plateau_mean_nm=means, plateau_sigma_nm=sig)

@@ -24,6 +24,7 @@ import identification as ident
 from nanosim import constants as C
 from nanosim.design.lti import single_threaded_blas
 from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN
+from nanosim.plant.noise import stream_seed
 from nanosim.plant.stage import StageConfig, Trace, run_open_loop_batch
 from nanosim.ramps import raised_cosine
 
@@ -68,7 +69,7 @@ class IdentifiedStage:
 
 def _experiment_inputs(settings: IdentifySettings, seed_offset: int):
     ex = ident.paper_excitation(fs=C.CONTROL_RATE_HZ, amplitude=settings.amplitude_V,
-                                seed=settings.seed * 1000 + seed_offset)
+                                seed=stream_seed(settings.seed, "identification.excitation", seed_offset))
     n_settle = int(settings.settle_s * C.CONTROL_RATE_HZ)
     ramp = settings.offset_V * raised_cosine(n_settle, 0.5)
     cmds = np.zeros((3, n_settle + len(ex.u), 3))
@@ -91,7 +92,7 @@ def run_experiments(settings: IdentifySettings, model=None, config: StageConfig 
     ex_e, cmd_e, n0 = _experiment_inputs(settings, 1)
     ex_v, cmd_v, _ = _experiment_inputs(settings, 2)
     cfg = config if config is not None else (StageConfig.ideal() if settings.ideal else StageConfig())
-    seeds = [settings.seed * 10 + k for k in range(6)]
+    seeds = [stream_seed(settings.seed, "identification", k) for k in range(6)]
     traces = (runner or run_open_loop_batch)(np.concatenate([cmd_e, cmd_v]), seeds=seeds, config=cfg, model=model)
     return ex_e, ex_v, traces[:3], traces[3:], n0
 

@@ -15,6 +15,7 @@ from nanosim.experiments.loop import (
     run_closed_loop,
 )
 from nanosim.experiments.registry import Experiment, register
+from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_tracking
 
 __all__ = ["TrackingCase", "tracking"]
@@ -50,7 +51,7 @@ def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40)
             ref = np.zeros((n, 3))
             ref[:, axis] = _wave(kind, f, t, amplitude_um)
             controller.reset()
-            cl = run_closed_loop(factory(seed), controller, interpolate(ref))
+            cl = run_closed_loop(factory(stream_seed(seed, "tracking")), controller, interpolate(ref))
             keep = slice(int(1 / f * FS), n)
             e = cl.error_um[keep, axis] * 1e3
             tt = t[keep]

@@ -42,6 +42,7 @@ from nanosim.pipeline.scorecard import scorecard, write_scorecard
 from nanosim.pipeline.runfolder import run_relative
 from nanosim.pipeline.timings import record_timings
 from nanosim.validation import named_message
+from nanosim.plant.noise import stream_seed
 
 __all__ = ["feedback_sensitivity", "FeedbackSensitivity", "run_compare", "resolve_model", "check_controllers",
            "check_only"]
@@ -97,11 +98,11 @@ def feedback_sensitivity(factory, controller, seed: int = 0, duration_s: float =
     three uncorrelated PRBS of ``amplitude_um`` (the bandwidth experiment's swing), MIMO H1.
     """
     n = int(duration_s * FS)
-    d_um = np.stack([ident.prbs(n, 800.0, fs=FS, amplitude=amplitude_um, seed=seed * 10 + 100 + i)
-                     for i in range(3)], 1)
+    d_um = ident.prbs_channels(n, 800.0, fs=FS, n_channels=3, amplitude=amplitude_um,
+                               seed=stream_seed(seed, "feedback_sensitivity.disturbance"))
     d_um = d_um - d_um.mean(axis=0)
     n_settle = int(settle_s * FS)
-    stage = _ReadingOffset(factory(seed), d_um / UM_PER_V, start=n_settle - 1)
+    stage = _ReadingOffset(factory(stream_seed(seed, "feedback_sensitivity")), d_um / UM_PER_V, start=n_settle - 1)
     cl = run_closed_loop(stage, controller, np.zeros((n, 3)), settle_s=settle_s)
     est = ident.h1_estimate(d_um, cl.y_um, fs=FS, nperseg=2048)
     f = est.freq_hz

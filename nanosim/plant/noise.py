@@ -3,19 +3,39 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["child_seed", "NormalStream", "NOISE_BLOCK"]
+__all__ = ["child_seed", "stream_seed", "NormalStream", "NOISE_BLOCK"]
 
 NOISE_BLOCK = 4096
+
+
+def stream_seed(seed: int, purpose: str, index: int = 0) -> int:
+    """The int seed of one random stream of a run seed: one per (``seed``, ``purpose``, ``index``).
+
+    ``purpose`` names what the stream is for (an experiment, the identification's excitation, its
+    stages); ``index`` counts the streams of one purpose. Different triples give independent streams
+    (``SeedSequence`` hashing of all three), so run seed s never replays a stream of run seed s + 1,
+    and an experiment's stages never share noise with another purpose's.
+    """
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"seed: expected a non-negative int, got {seed!r}")
+    if not isinstance(purpose, str) or not purpose:
+        raise ValueError(f"purpose: expected a non-empty string, got {purpose!r}")
+    if not isinstance(index, (int, np.integer)) or isinstance(index, bool) or index < 0:
+        raise ValueError(f"index: expected a non-negative int, got {index!r}")
+    tag = [int(b) for b in purpose.encode()]
+    state = np.random.SeedSequence([int(seed), int(index), len(tag), *tag]).generate_state(2, np.uint32)
+    return int((int(state[0]) << 31) | (int(state[1]) >> 1))
 
 
 def child_seed(seed, stream: int) -> np.random.SeedSequence:
     """Seed sequence for one stochastic element derived from a master seed.
 
     ``seed`` may be an int, ``None`` (fresh OS entropy) or a
-    ``numpy.random.SeedSequence`` (used as is, ignoring ``stream``).
+    ``numpy.random.SeedSequence`` (its child ``stream``, without advancing its spawn counter).
     """
     if isinstance(seed, np.random.SeedSequence):
-        return seed
+        return np.random.SeedSequence(seed.entropy, spawn_key=tuple(seed.spawn_key) + (stream,),
+                                      pool_size=seed.pool_size)
     if seed is not None and (not isinstance(seed, (int, np.integer)) or seed < 0):
         raise ValueError(f"seed: expected a non-negative int, None or SeedSequence, got {seed!r}")
     return np.random.SeedSequence(seed).spawn(stream + 1)[stream]
