@@ -13,13 +13,13 @@ Two fits use the same machinery:
   dimensions in :mod:`nanosim.plant.geometry` (the paper publishes none
   beyond the 50 mm scale, the APA35XS and the stroke): wide, physically
   sensible ranges, symmetric chains.
-* :data:`CALIBRATION_PARAMS` -- the calibration proper: notch thicknesses
-  within the standard wire-EDM tolerance (:data:`EDM_TOLERANCE_M`, +/-10 um,
-  mjcf/SOURCES.md item 8) of nominal, chains a and b's notches off the
-  calibrated family value by up to that tolerance again (the fabrication
-  asymmetry that splits the XY pairs; the two bounds add, a known defect
-  stated in mjcf/README.md), the cut radius within the same tolerance, link
-  widths within +/-0.1 mm and the target mass within +/-10 %.
+* :data:`CALIBRATION_PARAMS` -- the calibration proper: every notch family's
+  web on every chain within the standard wire-EDM tolerance
+  (:data:`EDM_TOLERANCE_M`, +/-10 um, mjcf/SOURCES.md item 8) of its design
+  value -- one bound on each notch's total deviation, so the chains' differences
+  (the fabrication asymmetry that splits the XY pairs) stay inside it too --,
+  the cut radius within the same tolerance, link widths within +/-0.1 mm and
+  the target mass within +/-10 %.
 
 Every fit reports its residuals and which bounds are active
 (:class:`FitResult`).
@@ -65,9 +65,9 @@ def volts_to_force_N() -> float:
 class FitParam:
     """One fitted quantity: a dotted path into :class:`StageGeometry` and its bounds (SI).
 
-    Paths: ``chain.fb1_notch.thickness_m``, ``table.target_side_m``, ``deviation.a_h1`` (per-notch
-    thickness deviation), ``notch_radius_m`` (the cut radius of every family), ``deviation.a_swing``
-    (every notch of a family on one chain).
+    Paths: ``chain.fb1_notch.thickness_m`` (a family's design web), ``table.target_side_m``,
+    ``notch_radius_m`` (the cut radius of every family), ``notch.a_swing`` (the web of every notch of
+    family ``swing`` on chain ``a``, absolute: stored as a deviation from the family's design web).
     """
 
     path: str
@@ -88,20 +88,21 @@ def _set(obj, parts, value):
     return replace(obj, **{parts[0]: _set(getattr(obj, parts[0]), parts[1:], value)})
 
 
-def _deviation_names(key: str) -> list[str]:
-    ch, rest = key.split("_", 1)
-    if rest in HINGE_FAMILIES:
-        return [f"{ch}_{n}" for n in HINGE_FAMILIES[rest]]
-    return [key]
+def _chain_family(path: str) -> tuple[str, str]:
+    ch, fam = path.split(".", 1)[1].split("_", 1)
+    if ch not in CHAINS or fam not in HINGE_FAMILIES:
+        raise ValueError(f"path: expected 'notch.<chain>_<family>' with chain in {CHAINS} and family in "
+                         f"{tuple(HINGE_FAMILIES)}, got {path!r}")
+    return ch, fam
 
 
 def get_param(g: StageGeometry, path: str) -> float:
     """Value of a :class:`FitParam` path on ``g``."""
     if path == "notch_radius_m":
         return g.chain.fb1_notch.radius_m
-    if path.startswith("deviation."):
-        dev = dict(g.thickness_deviation_m)
-        return float(dev.get(_deviation_names(path.split(".", 1)[1])[0], 0.0))
+    if path.startswith("notch."):
+        ch, fam = _chain_family(path)
+        return float(g.notch(f"{ch}_{HINGE_FAMILIES[fam][0]}").thickness_m)
     return float(_get(g, path.split(".")))
 
 
@@ -113,10 +114,11 @@ def set_param(g: StageGeometry, path: str, value: float) -> StageGeometry:
             attr = f"{fam}_notch"
             ch = replace(ch, **{attr: replace(getattr(ch, attr), radius_m=value)})
         return replace(g, chain=ch)
-    if path.startswith("deviation."):
+    if path.startswith("notch."):
+        ch, fam = _chain_family(path)
         dev = dict(g.thickness_deviation_m)
-        for n in _deviation_names(path.split(".", 1)[1]):
-            dev[n] = float(value)
+        for n in HINGE_FAMILIES[fam]:
+            dev[f"{ch}_{n}"] = float(value) - g.chain.notch(fam).thickness_m
         return replace(g, thickness_deviation_m=tuple(sorted((k, v) for k, v in dev.items() if v != 0.0)))
     g2 = _set(g, path.split("."), value)
     # link and notch widths go together: a notch is as wide as its link
@@ -261,14 +263,6 @@ def fit(params, g0: StageGeometry = DEFAULT_GEOMETRY, symmetric: bool = False, l
                      cost=float(0.5 * r @ r))
 
 
-def _notch_params(g: StageGeometry, tol: float):
-    out = []
-    for fam in HINGE_FAMILIES:
-        t = g.chain.notch(fam).thickness_m
-        out.append(FitParam(f"chain.{fam}_notch.thickness_m", t - tol, t + tol, "standard wire EDM +/-10 um"))
-    return out
-
-
 # The design study that set the nominal dimensions (run once; the result is DEFAULT_GEOMETRY).
 DESIGN_PARAMS = (
     FitParam("chain.apa_arm_m", 2.5e-3, 5e-3, "the APA notch's cuts (+/-R) clear the crank base notch's cuts"),
@@ -294,22 +288,20 @@ DESIGN_PARAMS = (
 )
 
 
-def calibration_params(g: StageGeometry = DEFAULT_GEOMETRY, chains: tuple[str, ...] = ("a", "b")
-                       ) -> tuple[FitParam, ...]:
-    """The calibration proper around ``g``'s nominal (bounds stated in each :class:`FitParam`).
+def calibration_params(g: StageGeometry = DEFAULT_GEOMETRY) -> tuple[FitParam, ...]:
+    """The calibration proper around ``g``'s design values (bounds stated in each :class:`FitParam`).
 
-    ``chains``: the chains whose notch families may deviate from nominal (the fabrication asymmetry).
+    Every notch family on every chain gets its own web, within :data:`EDM_TOLERANCE_M` of the family's
+    design web in ``g``: one bound on each notch's total deviation. The chains' differences are the
+    fabrication asymmetry that splits the XY pairs.
     """
-    bad = [c for c in chains if c not in CHAINS]
-    if bad:
-        raise ValueError(f"chains: expected names from {CHAINS}, got {bad}")
     tol = EDM_TOLERANCE_M
     R = g.chain.fb1_notch.radius_m
     side = g.table.target_side_m
     k = (1.1) ** (1.0 / 3.0)             # +/-10 % target mass
-    out = list(_notch_params(g, tol))
-    out += [FitParam(f"deviation.{ch}_{fam}", -tol, tol, f"chain {ch} {fam} notches off nominal within EDM")
-            for ch in chains for fam in HINGE_FAMILIES]
+    out = [FitParam(f"notch.{ch}_{fam}", g.chain.notch(fam).thickness_m - tol, g.chain.notch(fam).thickness_m + tol,
+                    "standard wire EDM +/-10 um of the design web")
+           for ch in CHAINS for fam in HINGE_FAMILIES]
     out += [FitParam("notch_radius_m", R - tol, R + tol, "standard wire EDM +/-10 um on the cut path"),
             FitParam("chain.fb1_rocker.width_m", g.chain.fb1_rocker.width_m - 1e-4, g.chain.fb1_rocker.width_m + 1e-4,
                      "link width +/-0.1 mm (milled faces)"),

@@ -45,6 +45,8 @@ class Mode:
     axis : 'X', 'Y', 'Z' or 'XY' from the probe participation.
     sensor_participation : (3,) probe X, Y, Z share of this mode's static
         contribution, relative to the strongest mode's largest entry.
+    actuator_participation : (nu,) the same per actuator (A, B, C): a mode with a
+        node at one chain is nearly invisible in that actuator's column.
     is_constraint : the shape violates the loop closures (numerical mode).
     shape_q : (nv,) joint-space shape (real part, unit max-norm).
     kinetic_energy_share : {part: share} of the mode's kinetic energy, parts from :data:`PARTS`.
@@ -58,11 +60,13 @@ class Mode:
     constraint_ratio: float
     shape_q: np.ndarray
     kinetic_energy_share: dict = None
+    actuator_participation: np.ndarray = None
 
     def to_json(self) -> dict:
         """JSON-ready dict (units in the keys)."""
         return {"freq_hz": float(self.freq_hz), "damping_ratio": float(self.damping_ratio),
                 "axis": self.axis, "sensor_participation": [float(v) for v in self.sensor_participation],
+                "actuator_participation": [float(v) for v in self.actuator_participation],
                 "kinetic_energy_share": {k: float(v) for k, v in (self.kinetic_energy_share or {}).items()},
                 "is_constraint": bool(self.is_constraint)}
 
@@ -190,13 +194,14 @@ def modal_analysis(model: mujoco.MjModel) -> ModalResult:
         off = shape - mm.N @ (mm.N.T @ shape)
         ratio = np.linalg.norm(off) / max(np.linalg.norm(shape), 1e-300) if mm.G.size else 0.0
         entries.append((abs(lam[i]) / (2 * np.pi), -lam[i].real / abs(lam[i]),
-                        np.linalg.norm(contrib, axis=1), ratio, shape))
+                        np.linalg.norm(contrib, axis=1), ratio, shape, np.linalg.norm(contrib, axis=0)))
     strongest = max((e[2].max() for e in entries if e[3] < CONSTRAINT_RATIO), default=1.0)
     shares = kinetic_energy_shares(model, np.column_stack([e[4] for e in entries])) if entries else []
     modes = tuple(sorted((Mode(freq_hz=float(f), damping_ratio=float(z), axis=_axis_label(p),
                                sensor_participation=p / strongest, is_constraint=bool(r >= CONSTRAINT_RATIO),
-                               constraint_ratio=float(r), shape_q=s, kinetic_energy_share=ke)
-                          for (f, z, p, r, s), ke in zip(entries, shares)), key=lambda m: m.freq_hz))
+                               constraint_ratio=float(r), shape_q=s, kinetic_energy_share=ke,
+                               actuator_participation=pa / strongest)
+                          for (f, z, p, r, s, pa), ke in zip(entries, shares)), key=lambda m: m.freq_hz))
     data = home_data(model)
     names, jacs = [], []
     jacp = np.zeros((3, nv))

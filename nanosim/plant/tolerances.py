@@ -21,13 +21,14 @@ piezo gain (actuator)          1                uniform +/-10 %    assumption [E
 (1) Uniform: a tolerance band is what the vendors state, the maximum-entropy
 law given only its bounds. A notch's bending stiffness follows Paros &
 Weisbord, ``k ~ t^(5/2) R^(-1/2)`` (:func:`notch_stiffness_ratio`): +/-5 um on
-the 70 um four-bar-2 notches of the v2 stage is +/-18 % stiffness.
+the 83 um four-bar-2 notches of the v2 stage is +/-15 % stiffness.
 
 Samples start from the *symmetric* nominal stage, so the asymmetry of the
 chains comes from each sample's own deviations: the bundled stage is built
-with chain a/b thickness deviations that split its XY pairs (v2,
-``CALIBRATED_GEOMETRY``), or with chain A 14 % stiffer (v1), and both are
-removed first.
+with per-chain webs that split its XY pairs (v2, ``CALIBRATED_GEOMETRY``;
+the symmetric stage has each family at the mean of the three chains' webs,
+and its modes are the calibrated pairs' centres to 0.1 %), or with chain A
+14 % stiffer (v1, the median of the chains), and both are removed first.
 
 Map (:func:`sample_model`, the one place that knows the MJCF):
 
@@ -183,12 +184,13 @@ def _notches(layout: str, model) -> list[tuple[str, str, float, float]]:
             t = (9.0 * math.pi * math.sqrt(_V1_R_M) * k / (2.0 * _V1_E_PA * _V1_B_M)) ** 0.4
             rows.append((notch, family, t, _V1_R_M))
         return rows
-    from nanosim.plant.geometry import CALIBRATED_GEOMETRY, HINGE_FAMILIES
+    from nanosim.plant.geometry import CALIBRATED_GEOMETRY as G, HINGE_FAMILIES
 
     rows = []
     for family, names in HINGE_FAMILIES.items():
-        nh = CALIBRATED_GEOMETRY.chain.notch(family)
-        rows += [(n, family, nh.thickness_m, nh.radius_m) for n in names]
+        # the symmetric stage: each family at the mean of the calibrated chains' webs
+        t = float(np.mean([G.notch(f"{c}_{names[0]}").thickness_m for c in CHAINS]))
+        rows += [(n, family, t, G.chain.notch(family).radius_m) for n in names]
     return rows
 
 
@@ -249,9 +251,11 @@ def _v2_model(values: Mapping[str, float], tm: ToleranceModel) -> mujoco.MjModel
     for name in tm.names:
         if name.startswith("thickness."):
             hinge = name.split(".", 1)[1]
-            t, t0 = values[name] * 1e-6, nom[name] * 1e-6
+            t = values[name] * 1e-6
             R, R0 = values[f"radius.{hinge}"] * 1e-6, nom[f"radius.{hinge}"] * 1e-6
-            dev.append((hinge, t * (R0 / R) ** 0.2 - t0))          # same bending stiffness as (t, R)
+            family_web_m = CALIBRATED_GEOMETRY.notch(hinge).thickness_m - dict(
+                CALIBRATED_GEOMETRY.thickness_deviation_m).get(hinge, 0.0)
+            dev.append((hinge, t * (R0 / R) ** 0.2 - family_web_m))          # same bending stiffness as (t, R)
     return model_from_geometry(CALIBRATED_GEOMETRY.with_(thickness_deviation_m=tuple(sorted(dev))))
 
 

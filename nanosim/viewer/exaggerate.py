@@ -112,5 +112,15 @@ def static_deflection_q(model: mujoco.MjModel, force_N: np.ndarray) -> np.ndarra
 
 
 def table_displacement_m(model: mujoco.MjModel, dq: np.ndarray) -> float:
-    """Linearized table-centre displacement magnitude (m) for joint deflection dq."""
-    return float(np.linalg.norm(mechanical_matrices(model).table @ dq))
+    """Largest linearized displacement (m) of the table's sites (its centre, the gauge faces) for deflection dq.
+
+    The sites off the centre make a twist count: a Z twist barely moves the centre, but turns the faces.
+    """
+    data = home_data(model)
+    table = model.body("table").id
+    jac = np.zeros((3, model.nv))
+    out = 0.0
+    for i in np.flatnonzero(model.site_bodyid == table):
+        mujoco.mj_jacSite(model, data, jac, None, int(i))
+        out = max(out, float(np.linalg.norm(jac @ dq)))
+    return out
