@@ -119,8 +119,9 @@ def check_params(params, mjcf=None) -> None:
 def point_model(values: dict, mjcf=None):
     """The MjModel of one sweep point (``{parameter: value}``), from the bundled stage's geometry.
 
-    ``thickness.<family>`` (um) and ``length_mm.<field>`` change the geometry (the stage is rebuilt,
-    every stiffness and mass from it); ``stiffness.<family>`` scales a family's joints;
+    ``thickness.<family>`` (um: the family's design web; each chain keeps its calibrated offset from
+    it) and ``length_mm.<field>`` change the geometry (the stage is rebuilt, every stiffness and mass
+    from it); ``stiffness.<family>`` scales a family's joints;
     ``target_mass_g`` sets the ``table`` body; ``piezo_gain`` scales the actuators.
     """
     from dataclasses import replace
