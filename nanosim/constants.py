@@ -77,7 +77,7 @@ AMPLIFIER_NOISE_V = 14.5e-6
 # sample, white part (a datasheet-level 16-18 bit DAC alone gives ~10-50 uV; the fitted level is
 # 5-25x that, i.e. interference, reference and ground noise, as the paper suspected). Fitted
 # without bounds; inside mjcf/SOURCES.md item 6's range of 20 uV - 2 mV; 15 held-out stages
-# give the value printed by tests/test_stage.py (within 7.5 % of 11.4 nm).
+# give 11.68 nm (tests/test_stage.py asserts within 7.5 % of 11.4 nm).
 DAC_WHITE_NOISE_V = 2.54e-4
 # 1/f corner of that noise: estimate [E] in [1, 100] Hz, typical of precision op-amp/reference
 # output stages (no datasheet: the paper does not name the DAC); 10 Hz, the geometric middle.
