@@ -65,12 +65,16 @@ def _controller_config(d: dict):
                             float(d["dt"]), d.get("n_error"))
 
 
-def _loop_figures(twin_piezo, ctrl) -> dict:
-    """Closed-loop stability and the worst multiloop disk margin on the sample's twin (loop as run)."""
+def _loop_figures(twin_piezo, ctrl, electronics) -> dict:
+    """Closed-loop stability and the worst multiloop disk margin on the sample's twin (loop as run).
+
+    The twin carries the piezo's small-signal gain after a reversal (about the identified gain) and the
+    bench electronics around it (amplifier lag, gauge filter, computation delay), as ``robustness.json``'s.
+    """
     from nanosim.design.robustness import (LoopPlant, closed_loop_poles, controller_systems, disk_margins,
                                            stage_grid_hz)
 
-    plant = LoopPlant.twin(twin_piezo.sysd_V)
+    plant = LoopPlant.twin(twin_piezo.sysd_V, electronics)
     K, Ky = controller_systems(ctrl)
     poles = closed_loop_poles(plant.G, K, Ky, plant.delay_samples)
     rho = float(np.max(np.abs(poles))) if poles.size else 0.0
@@ -107,7 +111,8 @@ def sample_plants(indices, seed: int, ctrl=None, mjcf=None, with_loop: bool = Tr
                "static_gain_um_per_V": G0.tolist(),
                "xy_split_percent": 100.0 * (f[1] - f[0]) / (0.5 * (f[1] + f[0])) if len(f) > 1 else math.nan}
         if with_loop and ctrl is not None:
-            rec.update(_loop_figures(linearize(Stage(model=model), include_piezo=True), ctrl))
+            rec.update(_loop_figures(linearize(Stage(model=model), include_piezo=True), ctrl,
+                                     StageConfig().electronics))
         home = Stage(model=model).table_um.copy()
         plants.append(MemberPlant(twin=twin, model=model, home_um=home, static_gain_um_per_V=G0))
         records.append(rec)

@@ -19,7 +19,7 @@ def fig_histograms(flats: list, spec: dict):
              for lim in spec["limits"] if lim["metric"] != "closed_loop_stable"]
     items += [("mode_1_hz", "first mode", None, None, "Hz"), ("xy_split_percent", "XY split, first pair", None,
                                                               None, "%"),
-              ("disk_margin_alpha", "disk margin alpha", None, None, "-")]
+              ("disk_margin_alpha", "disk margin alpha (worst location, twin)", None, None, "-")]
     ncol = 4
     nrow = math.ceil(len(items) / ncol)
     fig, axs = subplots(nrow, ncol, figsize=(3.3 * ncol, 2.6 * nrow), squeeze=False)
@@ -28,8 +28,17 @@ def fig_histograms(flats: list, spec: dict):
         v = v[np.isfinite(v)]
         if v.size:
             ax.hist(v, bins=min(30, max(5, v.size // 5)), color="tab:blue", alpha=0.75)
-        for x in (lo, hi):
-            if x is not None:
+        span = float(np.ptp(v)) if v.size else 0.0
+        for x, side in ((lo, "left"), (hi, "right")):
+            if x is None:
+                continue
+            far = v.size and abs(x - (v.min() if side == "left" else v.max())) > 5.0 * max(span, 1e-12)
+            if far:         # a limit far from every sample: name it at the edge, keep the bars readable
+                arrow = "<- " if side == "left" else " ->"
+                text = f"{arrow.strip()} limit {x:g} {unit}" if side == "left" else f"limit {x:g} {unit} {arrow.strip()}"
+                ax.text(0.02 if side == "left" else 0.98, 0.92, text, transform=ax.transAxes, ha=side,
+                        color="tab:red", fontsize=7)
+            else:
                 ax.axvline(x, color="tab:red", lw=1.5)
         ax.set_title(label, fontsize=9)
         ax.set_xlabel(f"{m} [{unit}]", fontsize=7)
