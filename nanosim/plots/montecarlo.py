@@ -34,8 +34,7 @@ def fig_histograms(flats: list, spec: dict):
                 continue
             far = v.size and abs(x - (v.min() if side == "left" else v.max())) > 5.0 * max(span, 1e-12)
             if far:         # a limit far from every sample: name it at the edge, keep the bars readable
-                arrow = "<- " if side == "left" else " ->"
-                text = f"{arrow.strip()} limit {x:g} {unit}" if side == "left" else f"limit {x:g} {unit} {arrow.strip()}"
+                text = f"<- limit {x:g} {unit}" if side == "left" else f"limit {x:g} {unit} ->"
                 ax.text(0.02 if side == "left" else 0.98, 0.92, text, transform=ax.transAxes, ha=side,
                         color="tab:red", fontsize=7)
             else:
