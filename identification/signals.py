@@ -88,20 +88,7 @@ def prbs(n_samples: int, band_hz: float, *, fs: float, amplitude: float = 1.0, s
     exactly one period and has the two-valued periodic autocorrelation of an
     MLS (``N`` at lag 0, ``-1`` elsewhere, in chip units).
     """
-    n_samples = positive_int("n_samples", n_samples)
-    amplitude = positive_float("amplitude", amplitude)
-    hold = prbs_hold_samples(band_hz, fs=fs)
-    n_chips = -(-n_samples // hold)
-    nbits = max(2, int(np.ceil(np.log2(n_chips + 1))))
-    if nbits > 32:
-        raise ValueError(f"n_samples: expected at most {hold * (2**32 - 1)} samples for this band, got {n_samples}")
-    rng = np.random.default_rng(_seed_sequence(seed))
-    state = rng.integers(0, 2, size=nbits)
-    if not state.any():
-        state[rng.integers(nbits)] = 1
-    chips = _sig.max_len_seq(nbits, state=state, length=n_chips)[0]
-    u = amplitude * (2.0 * chips.astype(float) - 1.0)
-    return u[np.arange(n_samples) // hold]            # each chip held ``hold`` samples (never more than needed)
+    return prbs_channels(n_samples, band_hz, fs=fs, n_channels=1, amplitude=amplitude, seed=seed)[:, 0]
 
 
 def prbs_channels(n_samples: int, band_hz: float, *, fs: float, n_channels: int, amplitude: float = 1.0,
@@ -135,15 +122,16 @@ def prbs_channels(n_samples: int, band_hz: float, *, fs: float, n_channels: int,
     n_chips = -(-n_samples // hold)
     nbits = max(2, int(np.ceil(np.log2(n_channels * n_chips + 1))))
     if nbits > 32:
-        raise ValueError(f"n_samples: expected at most {hold * ((2**32 - 1) // n_channels)} samples for this band "
-                         f"and {n_channels} channels, got {n_samples}")
+        channels = f" and {n_channels} channels" if n_channels > 1 else ""
+        raise ValueError(f"n_samples: expected at most {hold * ((2**32 - 1) // n_channels)} samples for this band"
+                         f"{channels}, got {n_samples}")
     rng = np.random.default_rng(_seed_sequence(seed))
     state = rng.integers(0, 2, size=nbits)
     if not state.any():
         state[rng.integers(nbits)] = 1
     chips = _sig.max_len_seq(nbits, state=state, length=n_channels * n_chips)[0].reshape(n_channels, n_chips).T
     u = amplitude * (2.0 * chips.astype(float) - 1.0)
-    return u[np.arange(n_samples) // hold]
+    return u[np.arange(n_samples) // hold]            # each chip held ``hold`` samples (never more than needed)
 
 
 def _seed_sequence(seed) -> np.random.SeedSequence:

@@ -41,8 +41,8 @@ from nanosim.pipeline.config import CompareConfig
 from nanosim.pipeline.scorecard import scorecard, write_scorecard
 from nanosim.pipeline.runfolder import run_relative
 from nanosim.pipeline.timings import record_timings
-from nanosim.validation import named_message
 from nanosim.plant.noise import stream_seed
+from nanosim.validation import named_message
 
 __all__ = ["feedback_sensitivity", "FeedbackSensitivity", "run_compare", "resolve_model", "check_controllers",
            "check_only"]

@@ -111,8 +111,8 @@ def sample_plants(indices, seed: int, ctrl=None, mjcf=None, with_loop: bool = Tr
                "static_gain_um_per_V": G0.tolist(),
                "xy_split_percent": 100.0 * (f[1] - f[0]) / (0.5 * (f[1] + f[0])) if len(f) > 1 else math.nan}
         if with_loop and ctrl is not None:
-            rec.update(_loop_figures(linearize(Stage(model=model), include_piezo=True), ctrl,
-                                     StageConfig().electronics))
+            stage = Stage(model=model)
+            rec.update(_loop_figures(linearize(stage, include_piezo=True), ctrl, stage.config.electronics))
         home = Stage(model=model).table_um.copy()
         plants.append(MemberPlant(twin=twin, model=model, home_um=home, static_gain_um_per_V=G0))
         records.append(rec)

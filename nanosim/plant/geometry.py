@@ -174,15 +174,19 @@ class StageGeometry:
         """A copy with table fields replaced."""
         return replace(self, table=replace(self.table, **kw))
 
-    def notch(self, hinge_name: str) -> NotchHinge:
-        """The notch ``{chain}_{name}`` with its fabrication deviation applied."""
+    def design_notch(self, hinge_name: str) -> NotchHinge:
+        """The notch ``{chain}_{name}``'s family design notch (no fabrication deviation)."""
         ch, name = hinge_name.split("_", 1)
         if ch not in CHAINS:
             raise ValueError(f"hinge name {hinge_name!r}: expected '<chain>_<notch>' with chain in {CHAINS}")
         fam = next((f for f, names in HINGE_FAMILIES.items() if name in names), None)
         if fam is None:
             raise ValueError(f"hinge name {hinge_name!r}: unknown notch {name!r}")
-        nominal = self.chain.notch(fam)
+        return self.chain.notch(fam)
+
+    def notch(self, hinge_name: str) -> NotchHinge:
+        """The notch ``{chain}_{name}`` with its fabrication deviation applied."""
+        nominal = self.design_notch(hinge_name)
         dt = dict(self.thickness_deviation_m).get(hinge_name, 0.0)
         return nominal.with_thickness(nominal.thickness_m + dt) if dt else nominal
 

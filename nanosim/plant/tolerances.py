@@ -253,8 +253,7 @@ def _v2_model(values: Mapping[str, float], tm: ToleranceModel) -> mujoco.MjModel
             hinge = name.split(".", 1)[1]
             t = values[name] * 1e-6
             R, R0 = values[f"radius.{hinge}"] * 1e-6, nom[f"radius.{hinge}"] * 1e-6
-            family_web_m = CALIBRATED_GEOMETRY.notch(hinge).thickness_m - dict(
-                CALIBRATED_GEOMETRY.thickness_deviation_m).get(hinge, 0.0)
+            family_web_m = CALIBRATED_GEOMETRY.design_notch(hinge).thickness_m
             dev.append((hinge, t * (R0 / R) ** 0.2 - family_web_m))          # same bending stiffness as (t, R)
     return model_from_geometry(CALIBRATED_GEOMETRY.with_(thickness_deviation_m=tuple(sorted(dev))))
 
