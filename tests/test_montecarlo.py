@@ -174,6 +174,7 @@ def test_montecarlo_writes_per_sample_resumes_and_seals(tmp_path, controller_npz
     assert set(first) == {"sample_00000.json", "sample_00001.json"}
     rec = first["sample_00000.json"]
     assert rec["closed_loop_stable"] and 0 < rec["disk_margin_alpha"] < 2 and len(rec["modes_hz"]) == 6
+    assert rec["disk_margin_alpha"] == min(rec["disk_margin_alpha_post_reversal"], rec["disk_margin_alpha_nominal"])
     cross = s["crosscheck"][0]["metrics"]
     assert cross, "the MuJoCo cross-check compared no metric"
     mtimes = {p: p.stat().st_mtime_ns for p in (out / "samples").iterdir()}

@@ -5,7 +5,9 @@ hysteresis slope after a reversal is about 0.75 of the nominal slope), every mod
 frequency +-3 %, every modal damping x0.5 ... x2, and 0 ... 1 sample of computation delay
 beyond the loop as run (whose own delays are in the plant).  :data:`STAGE_UNCERTAINTY`
 holds it; :func:`robust_stability_mu` covers it by complex blocks and brute-forces its
-vertices; :func:`perturbed_plant` builds one member.  Loop conventions: :mod:`~nanosim.design.loopresponse`.
+vertices; :func:`perturbed_plant` builds one member. The gains are factors on the nominal (major-loop secant)
+slope: a plant holding another slope maps them (:meth:`UncertaintySet.input_gain_range_about`; an identified model
+holds the slope after a reversal, so on it the set spans 1.02-1.36 x its gain).  Loop conventions: :mod:`~nanosim.design.loopresponse`.
 """
 from __future__ import annotations
 
@@ -48,7 +50,9 @@ class UncertaintySet:
     Attributes
     ----------
     input_gain_range : (float, float)
-        Gain per input channel (piezo small-signal slope), factor.
+        Gain per input channel (piezo small-signal slope), factor on the nominal (major-loop secant)
+        slope. A plant whose piezo sits elsewhere (the identified model holds the post-reversal slope)
+        maps it by :meth:`input_gain_range_about`.
     freq_scale_range : (float, float)
         Factor on every modal natural frequency.
     damping_scale_range : (float, float)
@@ -68,11 +72,17 @@ class UncertaintySet:
         check_range("damping_scale_range", self.damping_scale_range)
         check_range("extra_delay_samples_range", self.extra_delay_samples_range, positive=False, integer=True)
 
-    def mu_kwargs(self, nominal_delay_samples: int) -> dict:
+    def input_gain_range_about(self, input_gain_of_nominal: float = 1.0) -> tuple:
+        """``input_gain_range`` as factors on a plant whose piezo gain is ``input_gain_of_nominal`` x nominal."""
+        g = check_scale("input_gain_of_nominal", input_gain_of_nominal)
+        return tuple(float(v) / g for v in self.input_gain_range)
+
+    def mu_kwargs(self, nominal_delay_samples: int, input_gain_of_nominal: float = 1.0) -> dict:
         """Keyword arguments of :func:`robust_stability_mu` for a loop whose nominal delay
-        is ``nominal_delay_samples``.
+        is ``nominal_delay_samples`` and whose piezo gain is ``input_gain_of_nominal`` x nominal.
         """
-        return {"input_gain_range": tuple(self.input_gain_range), "freq_scale_range": tuple(self.freq_scale_range),
+        return {"input_gain_range": self.input_gain_range_about(input_gain_of_nominal),
+                "freq_scale_range": tuple(self.freq_scale_range),
                 "damping_scale_range": tuple(self.damping_scale_range),
                 "delay_samples_range": tuple(check_delay(nominal_delay_samples) + int(v)
                                              for v in self.extra_delay_samples_range),
@@ -81,7 +91,9 @@ class UncertaintySet:
     def to_dict(self) -> dict:
         """JSON-ready description (units in the keys)."""
         out = {k if k == "extra_delay_samples_range" else f"{k}_factor": list(v) for k, v in asdict(self).items()}
-        out["meaning"] = ("piezo gain per input channel (hysteresis slope after a reversal ~0.75 of nominal), "
+        out["meaning"] = ("piezo gain per input channel as a factor on nominal, the major-loop secant (hysteresis "
+                          "slope after a reversal ~0.75 of nominal; each plant's analysis maps it onto the slope that "
+                          "plant holds), "
                           "every structural mode's frequency and damping ratio scaled (pairs with zeta < 0.3 up to "
                           "1 kHz, real poles), computation delay beyond the loop as run")
         return out

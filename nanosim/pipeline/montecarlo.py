@@ -68,8 +68,8 @@ def _controller_config(d: dict):
 def _loop_figures(twin_piezo, ctrl, electronics) -> dict:
     """Closed-loop stability and the worst multiloop disk margin on the sample's twin (loop as run).
 
-    The twin carries the piezo's small-signal gain after a reversal (about the identified gain) and the
-    bench electronics around it (amplifier lag, gauge filter, computation delay), as ``robustness.json``'s.
+    ``twin_piezo`` carries one piezo slope (:func:`_loop_figures_over_gain` calls it at both ends) and the bench
+    electronics go around it (amplifier lag, gauge filter, computation delay), as ``robustness.json``'s twin.
     """
     from nanosim.design.robustness import (LoopPlant, closed_loop_poles, controller_systems, disk_margins,
                                            stage_grid_hz)
@@ -85,6 +85,21 @@ def _loop_figures(twin_piezo, ctrl, electronics) -> dict:
     out.update({"disk_margin_alpha": float(w.alpha), "disk_margin_freq_hz": float(w.freq_hz),
                 "gain_margin_db": float(w.gain_margin_db[1]), "phase_margin_deg": float(w.phase_margin_deg),
                 "disk_margin_location": w.location})
+    return out
+
+
+def _loop_figures_over_gain(twin_post_reversal, twin_nominal, ctrl, electronics) -> dict:
+    """:func:`_loop_figures` at both ends of the piezo's gain range, the slope after a reversal (the piezo's
+    small-signal gain) and nominal (a monotone move; the linear piezo): the worst end's figures, each end's margin
+    (``disk_margin_alpha_post_reversal``, ``disk_margin_alpha_nominal``) and stability at both.
+    """
+    lo = _loop_figures(twin_post_reversal, ctrl, electronics)
+    hi = _loop_figures(twin_nominal, ctrl, electronics)
+    out = dict(min(lo, hi, key=lambda r: r["disk_margin_alpha"]))
+    out.update({"closed_loop_stable": lo["closed_loop_stable"] and hi["closed_loop_stable"],
+                "spectral_radius": max(lo["spectral_radius"], hi["spectral_radius"]),
+                "disk_margin_alpha_post_reversal": lo["disk_margin_alpha"],
+                "disk_margin_alpha_nominal": hi["disk_margin_alpha"]})
     return out
 
 
@@ -112,7 +127,8 @@ def sample_plants(indices, seed: int, ctrl=None, mjcf=None, with_loop: bool = Tr
                "xy_split_percent": 100.0 * (f[1] - f[0]) / (0.5 * (f[1] + f[0])) if len(f) > 1 else math.nan}
         if with_loop and ctrl is not None:
             stage = Stage(model=model)
-            rec.update(_loop_figures(linearize(stage, include_piezo=True), ctrl, stage.config.electronics))
+            rec.update(_loop_figures_over_gain(linearize(stage, include_piezo=True), twin, ctrl,
+                                               stage.config.electronics))
         home = Stage(model=model).table_um.copy()
         plants.append(MemberPlant(twin=twin, model=model, home_um=home, static_gain_um_per_V=G0))
         records.append(rec)
@@ -167,7 +183,9 @@ def sample_units(tm, engine: str) -> dict:
         out = {"tolerances": tol, **out, "modes_hz, *_freq_hz": "Hz", "damping_ratio": "damping ratio",
                "static_gain_um_per_V": "um per controller V", "xy_split_percent": "%",
                "spectral_radius": "|z| of the closed-loop poles",
-               "disk_margin_alpha": "disk-margin alpha, dimensionless (as robustness.json's *_alpha)",
+               "disk_margin_alpha": "disk-margin alpha, dimensionless (as robustness.json's *_alpha), the worse of "
+                                    "the piezo's two ends (*_post_reversal, *_nominal)",
+               "disk_margin_alpha_post_reversal, disk_margin_alpha_nominal": "disk-margin alpha, dimensionless",
                "gain_margin_db": "dB", "phase_margin_deg": "degrees"}
     return out
 
@@ -312,7 +330,8 @@ def _load(out: Path, sub: str, n: int) -> list[dict]:
 
 def _flat(rec: dict) -> dict:
     flat = mc_stats.flatten_metrics(rec.get("metrics", {}))
-    for k in ("closed_loop_stable", "disk_margin_alpha", "gain_margin_db", "phase_margin_deg", "xy_split_percent"):
+    for k in ("closed_loop_stable", "disk_margin_alpha", "disk_margin_alpha_post_reversal", "disk_margin_alpha_nominal",
+              "gain_margin_db", "phase_margin_deg", "xy_split_percent"):
         if k in rec:
             flat[k] = float(rec[k])
     for j, f in enumerate(rec.get("modes_hz", [])[:6]):

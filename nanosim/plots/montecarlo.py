@@ -19,7 +19,7 @@ def fig_histograms(flats: list, spec: dict):
              for lim in spec["limits"] if lim["metric"] != "closed_loop_stable"]
     items += [("mode_1_hz", "first mode", None, None, "Hz"), ("xy_split_percent", "XY split, first pair", None,
                                                               None, "%"),
-              ("disk_margin_alpha", "disk margin alpha (worst location, twin)", None, None, "-")]
+              ("disk_margin_alpha", "disk margin alpha (worst location and piezo end, twin)", None, None, "-")]
     ncol = 4
     nrow = math.ceil(len(items) / ncol)
     fig, axs = subplots(nrow, ncol, figsize=(3.3 * ncol, 2.6 * nrow), squeeze=False)

@@ -390,7 +390,8 @@ def closed_loop_spectral_radius(Gd, Ke, Ky=None, delay_samples: int = LOOP_DELAY
     return float(np.max(np.abs(np.linalg.eigvals(Acl)))) if Acl.size else 0.0
 
 
-def uncertainty_vertex_check(Gd, Ke, Ky=None, uncertainty=None, *, n_random: int = 32, seed: int = 0) -> dict:
+def uncertainty_vertex_check(Gd, Ke, Ky=None, uncertainty=None, *, n_random: int = 32, seed: int = 0,
+                             input_gain_of_nominal: float = 1.0) -> dict:
     """Brute-force robust stability of ``u = Ke (r - y) + Ky y`` over a parametric uncertainty set.
 
     Every vertex of ``uncertainty`` (default :data:`~nanosim.design.uncertainty.STAGE_UNCERTAINTY`:
@@ -399,7 +400,9 @@ def uncertainty_vertex_check(Gd, Ke, Ky=None, uncertainty=None, *, n_random: int
     damping factor, integer delay), each built by :class:`~nanosim.design.uncertainty.ModalPlant`
     from the discrete ``Gd`` (the loop as run) and closed with
     :func:`closed_loop_spectral_radius`. A sampled check, not a certificate: fast enough for a
-    tuning rule (about 0.2 s for 96 plants of a 37-state model).
+    tuning rule (about 0.2 s for 96 plants of a 37-state model). ``input_gain_of_nominal``: the piezo
+    gain ``Gd`` holds as a factor on the set's nominal (an identified model:
+    :data:`~nanosim.design.robustness.IDENTIFIED_INPUT_GAIN_OF_NOMINAL`); the set's gains are mapped by it.
 
     Returns
     -------
@@ -415,7 +418,7 @@ def uncertainty_vertex_check(Gd, Ke, Ky=None, uncertainty=None, *, n_random: int
         raise ValueError(f"n_random: expected an integer >= 0, got {n_random!r}")
     mp = ModalPlant(Gd, float(Gd.dt))
     nu = int(np.asarray(Gd.B).shape[1])
-    g0, g1 = (float(v) for v in u.input_gain_range)
+    g0, g1 = u.input_gain_range_about(input_gain_of_nominal)
     pts = [(fs, zs, tuple(g), d) for fs, zs, d in itertools.product(u.freq_scale_range, u.damping_scale_range,
                                                                      u.extra_delay_samples_range)
            for g in itertools.product((g0, g1), repeat=nu)]

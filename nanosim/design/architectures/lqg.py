@@ -24,10 +24,12 @@ as the loop runs it::
 * LQR cost ``sum y'y + Q_I xi'xi + R_U u'u`` in sensor and controller volts.
 
 Tuning rule (the exported default, :data:`ROBUST_TUNING_RULE`): ``R_U = 0.03``, ``Q_I = 0.03``; the design
-model's structural modes above :data:`SHIFT_ABOVE_HZ` (the 462/472 Hz XY group and up) at x1.03-1.05 of their
-identified frequency (:func:`shifted_modes`); measurement inflation 2.5-5 with the disturbance-observer intensity
-``1e-5 V x inflation / 3`` per sample (:func:`disturbance_noise_V`). Of these 20 members
-(:data:`ROBUST_LADDER`), in the order of their predicted DAC- and gauge-noise sigma
+model's piezo gain at the centre, the upper quarter or the top of the uncertainty set's gain range on the
+identified model (:func:`design_input_gains`: 1.18, 1.27 or 1.36 x the identified gain); its structural modes
+above :data:`SHIFT_ABOVE_HZ` (the 462/472 Hz XY group and up) at x1.03-1.05 of their identified frequency
+(:func:`shifted_modes`); measurement inflation 2.5-5 with the disturbance-observer intensity
+``1e-5 V x inflation / 3`` per sample (:func:`disturbance_noise_V`). Of these 60 members
+(:data:`ROBUST_GAIN_FRACTIONS` x :data:`ROBUST_LADDER`), in the order of their predicted DAC- and gauge-noise sigma
 (:func:`predicted_noise_sigma_nm`), the first is taken that has a multiloop disk margin >= 0.42 on the
 identified model, is stable at every vertex and sample of
 :data:`~nanosim.design.uncertainty.STAGE_UNCERTAINTY`
@@ -35,6 +37,16 @@ identified model, is stable at every vertex and sample of
 below 1 over it (:func:`~nanosim.design.parametric.robust_stability_mixed_mu`, as ``robustness.json``
 reports it); at most four mu analyses, else the checked member with the least mu
 (``parameters["robust_rule_met"]`` False). ``parameters["tried"]`` records why each cheaper member was passed over.
+
+Why the design gain (session 12): the identified model holds the piezo's slope after a reversal, the low end of
+the uncertainty set's gain range (:data:`~nanosim.design.robustness.IDENTIFIED_INPUT_GAIN_OF_NOMINAL`: 0.733 of
+nominal, the piezo model's gain for the identification's own excitation); a monotone move (a step, a ramp) runs
+at up to nominal, 1.36 x the identified gain, which the linear twin holds. Until session 12 the set was applied
+as 0.75-1 x the *identified* gain, below it rather than above, and the design model held the identified gain: on
+the twin the loop had a multiloop disk margin of 0.09-0.12 (5-7 degrees of phase at ~388 Hz), and the 2 um step
+settled in 14.5-15.25 ms because its disturbance-observer pole (18-19 Hz) is cancelled by the reference path only
+at the design gain. Designed at the identified gain, no member of the ladder is robust over the set as it should
+be mapped (mixed mu >= 1 within the rule's analyses; ``tests/test_lqg.py``).
 
 Why the shift: the 462/472 Hz group must be actively damped (left undamped it adds ~1.6 nm to the X sigma).
 Its upper loop crossing has ~54 degrees of phase margin, but an LQG designed at the identified frequencies
@@ -101,7 +113,7 @@ from typing import NamedTuple
 import numpy as np
 
 from nanosim import constants
-from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES
+from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES, IDENTIFIED_INPUT_GAIN_OF_NOMINAL
 from nanosim.design.architectures.common import (
     DT_S,
     LEAK_HZ,
@@ -121,7 +133,7 @@ __all__ = ["design_lqg", "lqg_controller", "delay_augmented", "TUNING_RULE", "CO
            "MIN_DISK_MARGIN", "DISTURBANCE_NOISE_V", "ROBUST_LADDER", "ROBUST_FREQ_SCALES",
            "ROBUST_INFLATIONS", "ROBUST_MIN_DISK_MARGIN", "ROBUST_MU_MAX", "ROBUST_MAX_MU_CHECKS",
            "DISTURBANCE_CORNER_HZ", "DESIGN_FREQ_SCALE", "SHIFT_ABOVE_HZ", "SMALL_SIGNAL_GAIN",
-           "gauge_noise_per_sample_V", "shifted_modes", "predicted_noise_sigma_nm", "disturbance_noise_V"]
+           "gauge_noise_per_sample_V", "shifted_modes", "design_input_gains", "ROBUST_GAIN_FRACTIONS", "predicted_noise_sigma_nm", "disturbance_noise_V"]
 
 CONTROL_WEIGHT = 0.03
 INTEGRAL_WEIGHT = 0.03
@@ -151,11 +163,16 @@ PREFILTER_RULE = ("a reference prefilter notches the closed loop's ringing pairs
 ROBUST_FREQ_SCALES = (1.03, 1.035, 1.04, 1.045, 1.05)
 ROBUST_INFLATIONS = (2.5, 3.0, 4.0, 5.0)
 ROBUST_LADDER = tuple((s, i, CONTROL_WEIGHT) for s in ROBUST_FREQ_SCALES for i in ROBUST_INFLATIONS)
+# the design model's piezo gain: these fractions of the uncertainty set's (log) gain range on the identified model,
+# from its centre to its top (design_input_gains)
+ROBUST_GAIN_FRACTIONS = (0.5, 0.75, 1.0)
 ROBUST_MIN_DISK_MARGIN = 0.42
 ROBUST_MU_MAX = 1.0
 # at most this many mixed-mu analyses (~10 s each) per design
 ROBUST_MAX_MU_CHECKS = 4
-ROBUST_TUNING_RULE = ("LQG on the identified model (the loop as run), robust over the stage's uncertainty set: its "
+ROBUST_TUNING_RULE = ("LQG on the identified model (the loop as run), robust over the stage's uncertainty set: the "
+                      "design model's piezo gain at the centre, upper quarter or top of the set's gain range (the "
+                      "identified model holds its low end, the slope after a reversal), its "
                       f"structural modes above {SHIFT_ABOVE_HZ:g} Hz designed at x{ROBUST_FREQ_SCALES[0]:g}-"
                       f"{ROBUST_FREQ_SCALES[-1]:g}, measurement inflation {ROBUST_INFLATIONS[0]:g}-"
                       f"{ROBUST_INFLATIONS[-1]:g} (disturbance-observer intensity x inflation / 3), R_u = "
@@ -324,7 +341,7 @@ def predicted_noise_sigma_nm(Gd, K, n_error: int = 3, dt: float = DT_S) -> np.nd
 
 def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAMPLES,
                min_disk_margin: float = MIN_DISK_MARGIN, robust: bool = True,
-               reference_prefilter: bool = True) -> BenchDesign:
+               reference_prefilter: bool = True, design_input_gain: float | None = None) -> BenchDesign:
     """LQG with integral action by the rule of the module docstring.
 
     Parameters
@@ -351,6 +368,10 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
     reference_prefilter : bool
         Add the reference notch of :mod:`~nanosim.design.architectures.prefilter` at the loop's ringing
         pairs (default). The feedback operator, so every margin and mu, is the same either way.
+    design_input_gain : float or None
+        Factor on ``G``'s input gains in the design model (estimator and LQR; every check is on ``G``).
+        None: each of :func:`design_input_gains` (robust rule; members of the ladder like the others), 1
+        (nominal rule).
 
     Returns
     -------
@@ -372,22 +393,29 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
     f = analysis_grid_hz(dt, n=400)
     Gf = freqresp_z(Gd, f)
     ladder = ROBUST_LADDER if robust else tuple((1.0, i, r) for i, r in DEFAULT_LADDER)
-    design_models = {s: shifted_modes(Gd, s) if s != 1.0 else Gd for s in dict.fromkeys(m[0] for m in ladder)}
+    if design_input_gain is not None:
+        gains = (check_gain("design_input_gain", design_input_gain),)
+    else:
+        gains = design_input_gains() if robust else (1.0,)
     members = []
-    for scale, infl, ru in ladder:
-        dn = disturbance_noise_V(infl) if robust else DISTURBANCE_NOISE_V
-        K = lqg_controller(design_models[scale], delay_samples=delay_samples, measurement_inflation=infl,
-                           control_weight=ru, disturbance_noise_V=dn)
-        Ke, Ky = split_2dof(K, Gd.noutputs)
-        rho = closed_loop_spectral_radius(Gd, Ke, Ky, delay_samples)
-        sig = float(predicted_noise_sigma_nm(Gloop, K)[:2].max()) if rho < 1.0 else float("inf")
-        members.append(_Member(sig, scale, infl, ru, dn, K, rho))
+    for g in gains:
+        Gdes = _input_scaled(Gd, g)
+        design_models = {s: shifted_modes(Gdes, s) if s != 1.0 else Gdes for s in dict.fromkeys(m[0] for m in ladder)}
+        for scale, infl, ru in ladder:
+            dn = disturbance_noise_V(infl) if robust else DISTURBANCE_NOISE_V
+            K = lqg_controller(design_models[scale], delay_samples=delay_samples, measurement_inflation=infl,
+                               control_weight=ru, disturbance_noise_V=dn)
+            Ke, Ky = split_2dof(K, Gd.noutputs)
+            rho = closed_loop_spectral_radius(Gd, Ke, Ky, delay_samples)
+            sig = float(predicted_noise_sigma_nm(Gloop, K)[:2].max()) if rho < 1.0 else float("inf")
+            members.append(_Member(sig, scale, infl, ru, dn, K, rho, g))
     if robust:
         members.sort(key=lambda m: m.sigma_nm)
     min_dm = ROBUST_MIN_DISK_MARGIN if robust else min_disk_margin
     tried, best, fallback, n_mu = [], None, None, 0
     for m in members:
-        row = {"design_freq_scale": m.scale, "measurement_inflation": m.inflation, "control_weight": m.ru,
+        row = {"design_input_gain": m.gain, "design_freq_scale": m.scale, "measurement_inflation": m.inflation,
+               "control_weight": m.ru,
                "predicted_sigma_nm": m.sigma_nm, "spectral_radius": m.rho}
         tried.append(row)
         if m.rho >= 1.0:
@@ -398,7 +426,7 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
         row["multiloop_disk_margin"] = dm["multiloop"]
         if dm["multiloop"] < min_dm:
             continue
-        v = uncertainty_vertex_check(Gloop, Ke, Ky)
+        v = uncertainty_vertex_check(Gloop, Ke, Ky, input_gain_of_nominal=IDENTIFIED_INPUT_GAIN_OF_NOMINAL)
         row["worst_spectral_radius"] = v["worst_spectral_radius"]
         cand = m._replace(response=r, disk_margin=dm, vertices=v)
         if not robust:
@@ -420,7 +448,7 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
         best = fallback
     if best is None:
         raise ValueError(f"G: no LQG loop of the rule is stable with a multiloop disk margin >= {min_dm}: {tried}")
-    sig, scale, infl, ru, dn, K, rho, r, dm, v, mu = best
+    sig, scale, infl, ru, dn, K, rho, design_input_gain, r, dm, v, mu = best
     met = (mu is not None and mu < ROBUST_MU_MAX) if robust else True
     if not met:
         warnings.warn(f"G: no member of the robust LQG rule has mixed mu < {ROBUST_MU_MAX:g} over the uncertainty set "
@@ -436,6 +464,7 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
     Ke, Ky = split_2dof(K, Gd.noutputs)
     Pup = ModalPlant(Gd, dt).state_space(1.0, 1.0, SMALL_SIGNAL_GAIN, delay_samples)
     params = {"rule": "robust" if robust else "nominal", "robust_rule_met": met, "uncertainty_vertices": v,
+              "design_input_gain": float(design_input_gain),
               "mu_peak": mu,
               "design_freq_scale": scale, "shift_above_hz": SHIFT_ABOVE_HZ,
               "disturbance_noise_V": dn, "disturbance_corner_hz": DISTURBANCE_CORNER_HZ,
@@ -462,6 +491,7 @@ class _Member(NamedTuple):
     dn: float
     K: object
     rho: float
+    gain: float = 1.0
     response: object = None
     disk_margin: dict | None = None
     vertices: dict | None = None
@@ -475,6 +505,35 @@ def _mixed_mu_peak(Gloop, K, n_error: int) -> float:
     from nanosim.design.robustness import LoopPlant, analyze_controller
     s = analyze_controller(K, LoopPlant.identified(Gloop, 0), n_error=n_error).summary
     return float("inf") if s.get("mu_peak") is None else float(s["mu_peak"])
+
+
+def design_input_gains(fractions=ROBUST_GAIN_FRACTIONS, uncertainty=None) -> tuple:
+    """Piezo gains of the robust rule's design models: ``fractions`` of the uncertainty set's log gain range
+    on an identified model (0: its low end, 0.5: its geometric centre, 1: its top), factors on the model's gain.
+
+    The identified model holds the slope after a reversal
+    (:data:`~nanosim.design.robustness.IDENTIFIED_INPUT_GAIN_OF_NOMINAL` of nominal, the set's low end); a
+    monotone move runs at up to nominal, 1.36 x the identified gain.
+    """
+    from nanosim.design.uncertainty import STAGE_UNCERTAINTY
+    lo, hi = (STAGE_UNCERTAINTY if uncertainty is None else uncertainty).input_gain_range_about(
+        IDENTIFIED_INPUT_GAIN_OF_NOMINAL)
+    return tuple(float(lo * (hi / lo) ** float(q)) for q in fractions)
+
+
+def check_gain(name: str, v) -> float:
+    """A positive finite factor."""
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (np.isfinite(v) and v > 0):
+        raise ValueError(f"{name}: expected a positive finite factor, got {v!r}")
+    return float(v)
+
+
+def _input_scaled(Gd, gain: float):
+    """``Gd`` with every input channel's gain times ``gain``."""
+    import control as ct
+    if gain == 1.0:
+        return Gd
+    return ct.ss(Gd.A, np.asarray(Gd.B, float) * gain, Gd.C, np.asarray(Gd.D, float) * gain, Gd.dt)
 
 
 def _with_delay(Gd, delay_samples: int):
