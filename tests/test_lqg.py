@@ -271,5 +271,5 @@ def test_lqg_designed_at_the_identified_gain_is_not_robust_over_the_set(model):
     with pytest.warns(UserWarning, match="robust_rule_met"):
         d = design_lqg(model, design_input_gain=1.0, reference_prefilter=False)
     assert d.parameters["robust_rule_met"] is False and d.parameters["design_input_gain"] == 1.0
-    with pytest.raises(ValueError, match="design_input_gain: expected a positive finite factor, got 0"):
+    with pytest.raises(ValueError, match="design_input_gain: expected a finite real number > 0.0, got 0"):
         design_lqg(model, design_input_gain=0)

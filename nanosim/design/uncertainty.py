@@ -7,7 +7,8 @@ beyond the loop as run (whose own delays are in the plant).  :data:`STAGE_UNCERT
 holds it; :func:`robust_stability_mu` covers it by complex blocks and brute-forces its
 vertices; :func:`perturbed_plant` builds one member. The gains are factors on the nominal (major-loop secant)
 slope: a plant holding another slope maps them (:meth:`UncertaintySet.input_gain_range_about`; an identified model
-holds the slope after a reversal, so on it the set spans 1.02-1.36 x its gain).  Loop conventions: :mod:`~nanosim.design.loopresponse`.
+holds the slope after a reversal, so on it the set spans 1.02-1.36 x its gain).
+Loop conventions: :mod:`~nanosim.design.loopresponse`.
 """
 from __future__ import annotations
 
