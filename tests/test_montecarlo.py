@@ -153,7 +153,9 @@ def controller_npz(tmp_path_factory, model):
 
     G0 = modal_analysis(model).static_gain_um_per_V
     T = 2.5e-4
-    g = 2 * np.pi * 1.0 * T * np.linalg.inv(G0 / 5.0)      # 1 Hz integral loop: stable despite Q ~ 100 modes
+    # 0.5 Hz integral loop: stable at both piezo ends despite Q ~ 100 modes (at 1 Hz the loop is unstable at the
+    # nominal slope, at 178 Hz: the Monte Carlo reports the worse end)
+    g = 2 * np.pi * 0.5 * T * np.linalg.inv(G0 / 5.0)
     return write_npz(tmp_path_factory.mktemp("ctrl") / "controller.npz", Akd=0.9995 * np.eye(3), Bkd=np.eye(3),
                      Ckd=g, Dkd=g, dt=np.float64(T))
 
