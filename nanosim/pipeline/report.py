@@ -475,7 +475,8 @@ def _robustness_blocks(run: Path) -> list:
     return [("h", 2, "Robustness"),
             ("p", "The exported discrete controller on the loop as run, with the linear twin (bench delays and filters "
                   "added) and with the identified model (robustness.json). Uncertainty set: piezo gain per channel "
-                  f"{u.get('input_gain_range_factor')}, modal frequencies x{u.get('freq_scale_range_factor')}, "
+                  f"{u.get('input_gain_range_factor')} of nominal ({_gain_ranges_on_plants(plants)}), modal "
+                  f"frequencies x{u.get('freq_scale_range_factor')}, "
                   f"modal damping x{u.get('damping_scale_range_factor')}, delay +{u.get('extra_delay_samples_range')} "
                   "samples beyond the loop as run. The mixed mu bound treats each mode's frequency and damping and "
                   "each piezo gain as real parameters: below 1 proves stability of every plant of the set; empty "
@@ -483,6 +484,16 @@ def _robustness_blocks(run: Path) -> list:
                   "is far more conservative; the sampled spectral radius closes the loop at the set's vertices."),
             ("table", ["quantity"] + [plants[k].get("plant", k) for k in plants],
              [[lab] + [_fmt(plants[k].get(key)) for k in plants] for key, lab in keys], None)]
+
+
+def _gain_ranges_on_plants(plants: dict) -> str:
+    """The set's piezo-gain range as each plant's analysis mapped it (robustness.json ``uncertainty_set``)."""
+    parts = []
+    for k, p in plants.items():
+        rng = (p.get("uncertainty_set") or {}).get("input_gain_range_on_plant_factor")
+        if rng:
+            parts.append(f"{p.get('plant', k)}: x{_fmt(rng[0])}-{_fmt(rng[1])} of its own gain")
+    return "; ".join(parts) or "on every plant as given"
 
 
 def _stage_v2_blocks(run: Path) -> list:
