@@ -102,7 +102,8 @@ class UncertaintySet:
 
 STAGE_UNCERTAINTY = UncertaintySet()
 # STAGE_UNCERTAINTY as the keyword arguments of robust_stability_mu (and of nanosim.design.parametric's
-# parametric_lft and robust_stability_mixed_mu) for a loop without nominal delay: their defaults
+# parametric_lft and robust_stability_mixed_mu) for a loop without nominal delay on a plant at the nominal piezo
+# slope: their defaults (an identified model maps the gains, UncertaintySet.mu_kwargs)
 STAGE_MU_RANGES = STAGE_UNCERTAINTY.mu_kwargs(0)
 # Complex poles damped more than this, or above this frequency, are not the stage's structural modes
 # (176-738 Hz; filters, creep fits): the uncertainty set leaves them alone.
