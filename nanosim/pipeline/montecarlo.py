@@ -125,11 +125,11 @@ def sample_plants(indices, seed: int, ctrl=None, mjcf=None, with_loop: bool = Tr
         rec = {"index": int(i), "tolerances": values, "modes_hz": f, "damping_ratio": z,
                "static_gain_um_per_V": G0.tolist(),
                "xy_split_percent": 100.0 * (f[1] - f[0]) / (0.5 * (f[1] + f[0])) if len(f) > 1 else math.nan}
+        stage = Stage(model=model)
         if with_loop and ctrl is not None:
-            stage = Stage(model=model)
             rec.update(_loop_figures_over_gain(linearize(stage, include_piezo=True), twin, ctrl,
                                                stage.config.electronics))
-        home = Stage(model=model).table_um.copy()
+        home = stage.table_um.copy()
         plants.append(MemberPlant(twin=twin, model=model, home_um=home, static_gain_um_per_V=G0))
         records.append(rec)
     return plants, records, tm
