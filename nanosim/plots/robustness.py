@@ -106,8 +106,11 @@ def plot_disk_margins(analyses, target_alpha: float = DISK_MARGIN_TARGET, title:
                       label=f"{label}, {where}: min {getattr(m, where.replace(' + ', '_')).alpha:.3g}")
         mx = getattr(a, "mixed", None)
         if mx is not None:
+            on_plant = ("" if a.uncertainty is None else " (gain x%.3g-%.3g of its own)"
+                        % a.uncertainty.input_gain_range_about(a.input_gain_of_nominal))
             axm.loglog(mx.freq_hz, mx.mu_upper, color=col, lw=1.3,
-                       label=f"{label}: mixed mu (real parameters) {mx.mu_peak:.3g} at {mx.mu_peak_freq_hz:.1f} Hz")
+                       label=f"{label}{on_plant}: mixed mu (real parameters) {mx.mu_peak:.3g} at "
+                             f"{mx.mu_peak_freq_hz:.1f} Hz")
         if a.robust is not None:
             rb = a.robust
             axm.loglog(rb.freq_hz, rb.mu_upper, color=col, lw=0.8, ls=":",
@@ -124,8 +127,8 @@ def plot_disk_margins(analyses, target_alpha: float = DISK_MARGIN_TARGET, title:
     axm.set_ylabel("mu upper bound [-]")
     unc = next((a.uncertainty for _, a in items if a.uncertainty is not None), None)
     axm.set_title("robust stability over the uncertainty set" + ("" if unc is None else
-                  f": gain {unc.input_gain_range}, f x{unc.freq_scale_range}, zeta x{unc.damping_scale_range}, "
-                  f"delay +{unc.extra_delay_samples_range} samples"), fontsize=9)
+                  f": gain {unc.input_gain_range} of nominal, f x{unc.freq_scale_range}, "
+                  f"zeta x{unc.damping_scale_range}, delay +{unc.extra_delay_samples_range} samples"), fontsize=9)
     axm.grid(True, which="both", alpha=0.3)
     if any(a.robust is not None for _, a in items):
         axm.legend(fontsize=7, loc="upper left")
