@@ -119,17 +119,14 @@ def linearize(stage, f_cut_hz: float = 2500.0, include_piezo: bool = False, with
     sysd_V = ct.c2d(sys_V, dt, "zoh")
     qpos_C = qpos_D = None
     if with_qpos:
-        # same continuous (A, B) and ZOH as sysd_V, so its state drives these rows too
-        # same continuous A and ZOH as sysd_V; python-control may have moved the output
-        # scaling of sys_V into B, so map the state: x_V = alpha x_q
-        sysd_q = ct.c2d(ct.ss(A, B * gain_in, C_all[3:], D_all[3:] * gain_in), dt, "zoh")
-        Bq, BV = np.asarray(sysd_q.B), np.asarray(sysd_V.B)
+        # ZOH keeps the continuous state basis, C and D, so the qpos rows read sysd_V's state through the
+        # continuous map (no second c2d, whose round-off differs); python-control may have moved sys_V's
+        # output scaling into B: x_V = alpha x_q
+        Bq, BV = B * gain_in, np.asarray(sys_V.B)
         alpha = float(np.vdot(Bq, BV) / np.vdot(Bq, Bq))
-        scale_A, scale_B = np.abs(sysd_V.A).max(), np.abs(BV).max()      # c2d round-off is relative to the norms
-        if not (np.allclose(sysd_q.A, sysd_V.A, rtol=1e-6, atol=1e-9 * scale_A)
-                and np.allclose(alpha * Bq, BV, rtol=1e-6, atol=1e-9 * scale_B)):
+        if not (np.array_equal(np.asarray(sys_V.A), A) and np.allclose(alpha * Bq, BV, rtol=1e-12, atol=0.0)):
             raise RuntimeError("linearize: the qpos outputs do not share the twin's state")   # pragma: no cover
-        qpos_C, qpos_D = np.asarray(sysd_q.C) / alpha, np.asarray(sysd_q.D)
+        qpos_C, qpos_D = C_all[3:] / alpha, D_all[3:] * gain_in
     return LinearTwin(sys_V=sys_V, sys_um=sys_um, sysd_V=sysd_V, dt_s=dt, qpos_C=qpos_C, qpos_D=qpos_D)
 
 
