@@ -413,7 +413,9 @@ def report_markdown(summary: dict) -> str:
     lines += ["", f"## MuJoCo cross-check ({summary['crosscheck_pass']} of {summary['crosscheck_n']} samples with "
               f"every metric within {tol:g} % or its reading resolution; "
               f"{summary.get('crosscheck_pass_relative_only', 0)} within {tol:g} % alone)", "",
-              "Resolution (one ADC count, or one control period for a time read between samples): " +
+              f"Resolution ({mc_stats.READING_QUANTA_PER_METRIC} ADC counts, or {mc_stats.READING_QUANTA_PER_METRIC} "
+              "control periods for a time read between samples: each metric is a difference of two readings or "
+              "instants, each rounded to one quantum): " +
               ", ".join(f"`{m}` {_fmt(q)} {mc_stats.unit_of(m)}" for m, q in mc_stats.CROSSCHECK_RESOLUTION.items()),
               ""]
     if summary["crosscheck"]:

@@ -84,7 +84,7 @@ def fig_crosscheck(cross: list, tol_percent: float):
     for k, c in enumerate(cross):
         y = np.array([metrics.index(m) + 0.6 * (k / max(1, len(cross) - 1) - 0.5) for m in c["metrics"]])
         x = np.array([100 * (r["twin"] - r["mujoco"]) / max(abs(r["mujoco"]), 1e-12) for r in c["metrics"].values()])
-        # open marker: within the metric's reading resolution (one ADC count or one period), whatever the %
+        # open marker: within the metric's reading resolution (two ADC counts or two periods), whatever the %
         res = np.array([r.get("within_resolution", False) for r in c["metrics"].values()], bool)
         line, = ax.plot(x[~res], y[~res], "o", ms=3, label=f"#{c['sample']}")
         ax.plot(x[res], y[res], "o", ms=4, mfc="none", color=line.get_color())
