@@ -116,6 +116,20 @@ def test_full_and_reduced_models_agree_below_1kHz(modal, full_modal):
     assert_allclose(full_modal.static_gain_um_per_V, modal.static_gain_um_per_V, rtol=0.01, atol=0.02)
 
 
+def test_full_model_modes_do_not_depend_on_the_jacobian_form(full_model, full_modal):
+    # the full model (nv = 111) solves its closures with MuJoCo's sparse Jacobian, which 4.0.0 factors wrongly
+    # in some trees (google-deepmind/mujoco#3767); the dense solve must give the same physics
+    assert mujoco.mj_isSparse(full_model)
+    dense = load_model(FULL_MJCF)
+    dense.opt.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
+    assert not mujoco.mj_isSparse(dense)
+    dense_modal = modal_analysis(dense)
+    f = np.array([m.freq_hz for m in full_modal.modes if not m.is_constraint][:12])
+    f_dense = np.array([m.freq_hz for m in dense_modal.modes if not m.is_constraint][:12])
+    assert_allclose(f, f_dense, rtol=1e-6)
+    assert_allclose(full_modal.static_gain_um_per_V, dense_modal.static_gain_um_per_V, rtol=0, atol=1e-4)
+
+
 def test_parasitic_modes_lie_above_1kHz_and_are_reported_to_3kHz(full_modal):
     below = [m for m in full_modal.physical if m.freq_hz < 1000.0]
     assert len(below) == 6
