@@ -143,6 +143,21 @@ def test_matlab_diskmargin_example_spinning_satellite_with_coupled_controller():
     assert mm.phase_margin_deg == pytest.approx(21.2607, abs=0.1)
 
 
+def test_input_output_margin_alone_bounds_the_others_and_gives_the_same_worst():
+    # the input+output perturbation set holds the input-only and output-only ones, so its margin is the smallest;
+    # computing it alone (the Monte Carlo's per-sample figure) gives the same worst margin, bit for bit
+    P = satellite()
+    C = np.array([[1.0, -2.0], [0.0, 1.0]])
+    f = np.concatenate([[0.0], np.logspace(-3, 2, 120)])
+    full = la.disk_margins(P, C, f, refine=False)
+    io = la.disk_margins(P, C, f, refine=False, input_output_only=True)
+    assert full.input_output.alpha <= min(full.input.alpha, full.output.alpha) + 1e-12
+    assert full.worst() is full.input_output
+    assert io.input is None and io.output is None and io.alpha_input_f is None and io.alpha_output_f is None
+    assert io.worst().alpha == full.worst().alpha and io.worst().freq_hz == full.worst().freq_hz
+    assert np.array_equal(io.alpha_input_output_f, full.alpha_input_output_f)
+
+
 def test_matlab_diskmargin_example_earlier_release():
     # [MW-old]: c = [1 8; -10 1], C = [1 -2; 0 1], L = P*C.  DM(1), DM(2): DiskMargin 2.
     # MM: GainMargin [0.6071 1.6472], PhaseMargin [-27.4762 27.4762], DiskMargin 0.4890,

@@ -80,7 +80,7 @@ def _loop_figures(twin_piezo, ctrl, electronics) -> dict:
     rho = float(np.max(np.abs(poles))) if poles.size else 0.0
     out = {"closed_loop_stable": bool(rho < 1.0), "spectral_radius": rho}
     f = stage_grid_hz(plant, K, Ky, n=300)
-    rep = disk_margins(plant.G, K, f, Ky, delay_samples=plant.delay_samples, refine=False)
+    rep = disk_margins(plant.G, K, f, Ky, delay_samples=plant.delay_samples, refine=False, input_output_only=True)
     w = rep.worst()
     out.update({"disk_margin_alpha": float(w.alpha), "disk_margin_freq_hz": float(w.freq_hz),
                 "gain_margin_db": float(w.gain_margin_db[1]), "phase_margin_deg": float(w.phase_margin_deg),
