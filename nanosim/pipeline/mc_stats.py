@@ -48,7 +48,7 @@ CROSSCHECK_REL_TOL = 0.05
 # after an up and a down move) or of two instants (the 90 % crossing minus the 10 % one), so two simulators can
 # read it two quanta apart at the same physics (``tests/test_montecarlo.py`` checks the bound). Without it the
 # closed-loop creep drift (0.03 nm) and hysteresis (0.25 nm) of a loop that rejects both, far below one count,
-# and a 2 um step's overshoot of 10-30 nm (peaks one count apart, 0.05-0.1 count in the pre-step mean) fail a
+# and a 2 um step's overshoot of 8-30 nm (peaks one count apart, 0.05-0.1 count in the pre-step mean) fail a
 # relative comparison on rounding alone. Averaged metrics (contour mean error, sigma) and the bandwidths are
 # compared relatively only.
 READING_QUANTA_PER_METRIC = 2
