@@ -73,6 +73,15 @@ def _reference(n):
     return ref
 
 
+def _on_processes(worker, args_per_process):
+    """Run ``worker(*args, barrier)`` on one spawned process per entry, started together; returns the results."""
+    n = len(args_per_process)
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Manager() as mgr, ctx.Pool(n) as pool:
+        barrier = mgr.Barrier(n)
+        return pool.starmap(worker, [(*args, barrier) for args in args_per_process])
+
+
 def _twin_worker(n_members, seed0, sim_s, barrier):
     """One worker process: n_members twins (their own copies) in closed loop; returns its run time."""
     model = load_model()
@@ -95,10 +104,7 @@ def _twin_worker(n_members, seed0, sim_s, barrier):
 def twin_aggregate(processes=2, members=TWIN_B, sim_s=TWIN_SIM_S) -> float:
     """Aggregate real-time factor of ``members`` twins split over ``processes`` worker processes."""
     per = members // processes
-    ctx = multiprocessing.get_context("spawn")
-    with ctx.Manager() as mgr, ctx.Pool(processes) as pool:
-        barrier = mgr.Barrier(processes)
-        times = pool.starmap(_twin_worker, [(per, k * per, sim_s, barrier) for k in range(processes)])
+    times = _on_processes(_twin_worker, [(per, k * per, sim_s) for k in range(processes)])
     twin_aggregate.cpu_rt = members * sim_s / max(c for _, c in times)      # per CPU-second of the slowest worker
     return members * sim_s / max(w for w, _ in times)
 
@@ -141,11 +147,7 @@ def _mujoco_worker(members, barrier):
 def mujoco_two_processes_rt(members=MJ_B) -> float:
     """The machine's own ceiling for two: ``members`` stages split over two independent single-threaded processes
     (no shared memory, no thread pool); aggregate real-time factor, by the slower process."""
-    ctx = multiprocessing.get_context("spawn")
-    with ctx.Manager() as mgr, ctx.Pool(2) as pool:
-        barrier = mgr.Barrier(2)
-        times = pool.starmap(_mujoco_worker, [(members // 2, barrier)] * 2)
-    return members * MJ_SIM_S / max(times)
+    return members * MJ_SIM_S / max(_on_processes(_mujoco_worker, [(members // 2,)] * 2))
 
 
 def test_mujoco_two_threads_vs_one(benchmark):
