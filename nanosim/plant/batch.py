@@ -60,7 +60,8 @@ class _BatchFloor:
     """Floor vibration of B members (:class:`nanosim.plant.floor.FloorVibration` vectorized).
 
     Per member: the base acceleration from its own seed (stream 4, drawn in chunks) and its own
-    floor model; ``x+ = Ad x + Bd a``, displacement ``Cd x+`` (stacked products, one ``gemv`` per member).
+    floor model; ``x+ = Ad x + Bd a``, displacement ``Cd x+`` (stacked products, one ``gemv`` per member;
+    with ``exact=False`` one :func:`member_products` of the stacked ``[x; a]``).
     """
 
     def __init__(self, models, config: FloorConfig, seeds, exact: bool = True):
@@ -73,9 +74,10 @@ class _BatchFloor:
         self._Cd = np.stack([m.Cd for m in models])
         self._sigma = [float(np.sqrt(config.accel_psd_m2_s4_Hz / (2.0 * m.dt_s))) for m in models]
         self._P = None
-        if not exact:            # [x+; d] = [[Ad, Bd], [Cd Ad, Cd Bd]] [x; a] in one product
-            self._P = np.concatenate([np.concatenate([self._Ad, self._Bd], axis=2),
-                                      np.concatenate([self._Cd @ self._Ad, self._Cd @ self._Bd], axis=2)], axis=1)
+        if not exact:            # [x+; d] = [[Ad, Bd], [Cd Ad, Cd Bd]] [x; a], members last (member_products)
+            P = np.concatenate([np.concatenate([self._Ad, self._Bd], axis=2),
+                                np.concatenate([self._Cd @ self._Ad, self._Cd @ self._Bd], axis=2)], axis=1)
+            self._P = np.ascontiguousarray(P.transpose(1, 2, 0))
         self.reset()
 
     def reset(self) -> None:
@@ -112,9 +114,9 @@ class _BatchFloor:
         self._i += 1
         if self._P is not None:
             nx = self._x.shape[1]
-            out = np.matmul(self._P, np.concatenate([self._x, a], axis=1))
-            self._x = out[:, :nx]
-            return out[:, nx:, 0]
+            out = member_products(self._P, np.concatenate([self._x, a], axis=1)[:, :, 0])
+            self._x = out[:, :nx, None]
+            return out[:, nx:]
         self._x = np.matmul(self._Ad, self._x) + np.matmul(self._Bd, a)
         return np.matmul(self._Cd, self._x)[:, :, 0]
 
@@ -227,6 +229,18 @@ def _twin_matrices(tw) -> tuple:
     raise ValueError(f"twins: expected a LinearTwin or TwinMatrices, got {type(tw).__name__}")
 
 
+def member_products(PS: np.ndarray, xv: np.ndarray) -> np.ndarray:
+    """``P_b @ xv[b]`` of every member, ``(B, m)``, from the members-last stack ``PS`` ``(m, k, B)`` and
+    ``xv`` ``(B, k)``: each sum left to right over ``k`` (a multiply then an add per term), the arithmetic
+    of :func:`nanosim.plant.batch_kernel.member_products`, so both paths give the same bits.
+    """
+    xt = xv.T
+    out = PS[:, 0, :] * xt[0]
+    for j in range(1, PS.shape[1]):
+        out += PS[:, j, :] * xt[j]
+    return out.T
+
+
 def _stack_twins(twins, n: int):
     """Shared ``(A, B, C, D)`` or per-member stacks ``(n, ., .)``."""
     if isinstance(twins, TwinMatrices) or hasattr(twins, "sysd_V"):
@@ -286,7 +300,8 @@ class BatchTwinStage(_BatchStageBase):
             top = np.concatenate([A, B], axis=-1)
             bottom = np.concatenate([Cm @ A, Cm @ B + D], axis=-1)
             P = np.concatenate([top, bottom], axis=-2)
-            self._P = P if self.per_member else np.ascontiguousarray(P.T)
+            # per member: members last, (m, k, B), for member_products; shared: P.T for xv @ P.T
+            self._P = np.ascontiguousarray(P.transpose(1, 2, 0) if self.per_member else P.T)
             self._xv = np.zeros((self.n, A.shape[-1] + B.shape[-1]))
         home = np.zeros(3) if home_um is None else np.asarray(home_um, dtype=float)
         self._home_um = np.broadcast_to(home, (self.n, 3)).copy()
@@ -303,7 +318,7 @@ class BatchTwinStage(_BatchStageBase):
             xv = self._xv
             xv[:, :nx] = self._x
             np.divide(v_free_V, self._gain, out=xv[:, nx:])
-            out = np.matmul(self._P, xv[:, :, None])[:, :, 0] if self.per_member else xv @ self._P
+            out = member_products(self._P, xv) if self.per_member else xv @ self._P
             self._x = out[:, :nx]
             self.table_um = self._home_um + UM_PER_V * out[:, nx:]
             return
@@ -326,7 +341,7 @@ class BatchTwinStage(_BatchStageBase):
         x = np.ascontiguousarray(self._x)
         if not self.exact:
             if getattr(self, "_P3", None) is None:
-                self._P3 = np.ascontiguousarray(self._P if self.per_member else self._P[None])   # P.T if shared
+                self._P3 = self._P if self.per_member else self._P[None]     # (m, k, B); P.T if shared
             return (3 if self.per_member else 2), e3, e3, e3, e3, self._P3, x
         mats = tuple(np.ascontiguousarray(m if self.per_member else m[None]) for m in
                      (self._A, self._B, self._C, self._D))

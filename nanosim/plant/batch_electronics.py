@@ -127,7 +127,7 @@ class _StackedNoise(_NoiseTerms):
         """``(k, 3 B)``: ``k`` rows of every member's ``stream``, members side by side (``np.concatenate``'s)."""
         out = np.empty((k, 3 * len(self._chains)))
         for b, ch in enumerate(self._chains):
-            out[:, 3 * b:3 * b + 3] = getattr(ch, stream).take(k)
+            getattr(ch, stream).take_into(out[:, 3 * b:3 * b + 3])
         return out
 
     def _refill(self) -> None:

@@ -9,12 +9,13 @@ ADC) for every member without returning to Python between periods. Every
 element-wise operation is the numpy path's, in its order (the hysteresis sum
 is numpy's pairwise summation, the creep sum left to right), and the noise
 terms are the same rows (drawn in blocks from the same streams). The matrix
-products (controller, twin, floor) are BLAS calls made from compiled code, or
-small loops where the numpy path makes one ``gemv`` per member; their
-summation order may differ from numpy's BLAS, so results agree with the
-numpy path to about 1e-15 relative per step (``tests/test_batch_kernel.py``
-checks 1e-12 on whole closed-loop records, and B = 1 against
-:class:`~nanosim.plant.twin.TwinStage`).
+products are the numpy path's: BLAS calls made from compiled code for the
+controllers, shared twins and the exact per-member products (one ``gemv``
+per member), and :func:`member_products` for per-member twins and floors
+with ``exact=False`` (left-to-right sums with the members in the inner loop,
+which :func:`nanosim.plant.batch.member_products` repeats in numpy). So the
+records equal the numpy path's bit for bit (``tests/test_batch_kernel.py``),
+and B = 1 equals :class:`~nanosim.plant.twin.TwinStage`.
 
 Without numba (``AVAILABLE`` False) callers use the numpy path.
 """
@@ -109,6 +110,22 @@ def _pairwise_columns(a, acc, out):
 def _matvec(M, x, out):
     """Set out = M @ x: the BLAS ``gemv`` numpy's stacked ``matmul`` makes for one member (into ``out``)."""
     np.dot(M, x, out)
+
+
+@njit(cache=True, error_model="numpy")
+def member_products(PS, XT, OUT):
+    """``OUT[:, b] = P_b @ XT[:, b]`` for every member of the members-last stack ``PS`` ``(m, k, B)``:
+    each sum left to right over ``k``, a multiply then an add per term (no fused multiply-add), the
+    members in the inner loop (SIMD across members); :func:`nanosim.plant.batch.member_products` is
+    the same arithmetic in numpy.
+    """
+    m, k, nb = PS.shape
+    for i in range(m):
+        for b in range(nb):
+            OUT[i, b] = PS[i, 0, b] * XT[0, b]
+        for j in range(1, k):
+            for b in range(nb):
+                OUT[i, b] = OUT[i, b] + PS[i, j, b] * XT[j, b]
 
 
 @njit(cache=True, error_model="numpy")
@@ -241,17 +258,17 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
     zw = np.empty((nr, nch))
     acc = np.empty((8, nch))
     co = np.empty(p_out)
-    xv = np.empty(nx + 3)
     XV = np.empty((nb if tmode == 2 else 0, nx + 3))
+    XT = np.empty((nx + 3 if tmode == 3 else 0, nb))
+    TT = np.empty((nx + 3 if tmode == 3 else 0, nb))
     tall = np.empty((nb if tmode == 2 else 0, nx + 3))
     cout = np.empty((nb if cmode == 0 else 0, p_out))
-    tout = np.empty(nx + 3)
     xn = np.empty(nx)
     tmp = np.empty(nx)
     yy = np.empty(3)
     ty = np.empty(3)
-    fv = np.empty(nf + 3)
-    fo = np.empty(nf + 3)
+    FT = np.empty((nf + 3 if fmode == 2 else 0, nb))
+    FO = np.empty((nf + 3 if fmode == 2 else 0, nb))
     fn = np.empty(nf)
     ftmp = np.empty(nf)
     d3 = np.empty(3)
@@ -308,22 +325,31 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
                 for c in range(3):
                     XV[b, nx + c] = v_free[3 * b + c] / gain
             np.dot(XV, TP[0], tall)
+        elif tmode == 3:                    # per member [x+; y] = P_b [x; v], members last (TP: (m, k, B))
+            for b in range(nb):
+                for i in range(nx):
+                    XT[i, b] = tx[b, i]
+                for c in range(3):
+                    XT[nx + c, b] = v_free[3 * b + c] / gain
+            member_products(TP, XT, TT)
+        if fmode == 2:                      # per member [x+; d] = P_b [x; a], members last (FP: (m, k, B))
+            for b in range(nb):
+                for i in range(nf):
+                    FT[i, b] = fx[b, i]
+                for c in range(3):
+                    FT[nf + c, b] = facc[kk, b, c]
+            member_products(FP, FT, FO)
         for b in range(nb):
             if tmode == 2:
                 for i in range(nx):
                     tx[b, i] = tall[b, i]
                 for c in range(3):
                     table[b, c] = home[b, c] + fp[F_LOOP_UMV] * tall[b, nx + c]
-            elif tmode == 3:                # per member [x+; y] = P [x; v]
+            elif tmode == 3:
                 for i in range(nx):
-                    xv[i] = tx[b, i]
+                    tx[b, i] = TT[i, b]
                 for c in range(3):
-                    xv[nx + c] = v_free[3 * b + c] / gain
-                _matvec(TP[b], xv, tout)
-                for i in range(nx):
-                    tx[b, i] = tout[i]
-                for c in range(3):
-                    table[b, c] = home[b, c] + fp[F_LOOP_UMV] * tout[nx + c]
+                    table[b, c] = home[b, c] + fp[F_LOOP_UMV] * TT[nx + c, b]
             else:
                 bi = 0 if tmode == 0 else b
                 for c in range(3):
@@ -341,14 +367,9 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
             if fmode > 0:
                 if fmode == 2:
                     for i in range(nf):
-                        fv[i] = fx[b, i]
+                        fx[b, i] = FO[i, b]
                     for c in range(3):
-                        fv[nf + c] = facc[kk, b, c]
-                    _matvec(FP[b], fv, fo)
-                    for i in range(nf):
-                        fx[b, i] = fo[i]
-                    for c in range(3):
-                        table[b, c] = table[b, c] + fo[nf + c]
+                        table[b, c] = table[b, c] + FO[nf + c, b]
                 else:
                     _matvec(FA[b], fx[b], fn)
                     for c in range(3):

@@ -67,7 +67,11 @@ class NormalStream:
 
     def take(self, n: int) -> np.ndarray:
         """``n`` rows, the same numbers ``n`` calls of :meth:`take1` would give."""
-        out = np.empty((n, self._width))
+        return self.take_into(np.empty((n, self._width)))
+
+    def take_into(self, out: np.ndarray) -> np.ndarray:
+        """Fill ``out`` ``(n, width)`` (a view may be strided) with the next ``n`` rows of :meth:`take`."""
+        n = out.shape[0]
         filled = 0
         while filled < n:
             if self._i == self._block:
