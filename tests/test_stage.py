@@ -223,6 +223,21 @@ def test_floor_vibration_sigma_matches_its_spectrum(model):
     assert_allclose(d.std(axis=0), np.sqrt(var), rtol=0.08)
 
 
+def test_vc_floor_psd_is_its_stated_basis():
+    """VC-C (12.5 um/s per 1/3 octave) through a 0.01 plateau: the default 3e-11 at ~11 Hz, 4.7e-10 and
+    6.5e-10 (m/s^2)^2/Hz at the 175 and 245 Hz modes (mjcf/SOURCES.md item 9); a flat velocity per
+    proportional band is an acceleration PSD rising as f."""
+    from nanosim.plant.floor import vc_accel_psd
+    band_Hz = 175.0 * 2 ** (1 / 6) - 175.0 / 2 ** (1 / 6)            # the 1/3-octave band's edges
+    assert_allclose(vc_accel_psd(175.0), (2 * np.pi * 175.0 * 12.5e-6 * 0.01) ** 2 / band_Hz, rtol=1e-12)
+    assert_allclose([vc_accel_psd(175.0), vc_accel_psd(245.0)], [4.7e-10, 6.5e-10], rtol=0.01)
+    assert_allclose(vc_accel_psd(11.0), C.FLOOR_ACCEL_PSD_M2_S4_HZ, rtol=0.03)
+    assert_allclose(vc_accel_psd(1000.0) / vc_accel_psd(10.0), 100.0, rtol=1e-12)
+    assert_allclose(vc_accel_psd(175.0, velocity_um_s=25.0), 4 * vc_accel_psd(175.0), rtol=1e-12)   # VC-B
+    with pytest.raises(ValueError, match="transmissibility: expected a finite value > 0, got -1"):
+        vc_accel_psd(175.0, transmissibility=-1.0)
+
+
 def test_twin_and_mujoco_stage_share_the_floor_series(model, twin):
     from nanosim.plant.floor import floor_model
     from nanosim.plant.twin import TwinStage

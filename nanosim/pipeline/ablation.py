@@ -50,13 +50,13 @@ from nanosim.experiments.contouring import contouring
 from nanosim.experiments.resolution import resolution
 from nanosim.experiments.sysid import IdentifySettings, identify_stage
 from nanosim.fileio import write_npz
-from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S, PAPER_STEP_UM
+from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S, PAPER_MODES_HZ, PAPER_STEP_UM
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import DesignConfig
 from nanosim.pipeline.design import run_design
 from nanosim.pipeline.identify import save_model
 from nanosim.plant.electronics import ElectronicsConfig
-from nanosim.plant.floor import FloorConfig, floor_model
+from nanosim.plant.floor import FloorConfig, floor_model, vc_accel_psd
 from nanosim.plant.linearize import linearize
 from nanosim.plant.piezo import PiezoConfig
 from nanosim.plant.stage import Stage, StageConfig, Trace
@@ -102,6 +102,11 @@ def ablation_rows() -> list[AblationRow]:
                                                     dac_flicker_corner_Hz=None, amplifier_noise=False),
                             floor=FloorConfig.off())),
         AblationRow("no floor", "no floor vibration", replace(v2, floor=FloorConfig.off())),
+        *[AblationRow(f"floor VC-C at {f:.0f} Hz",
+                      f"floor PSD {vc_accel_psd(f):.2g} (m/s^2)^2/Hz: the VC-C basis at the {f:.0f} Hz mode "
+                      f"(default {C.FLOOR_ACCEL_PSD_M2_S4_HZ:.0e}, the same basis at ~11 Hz)",
+                      replace(v2, floor=FloorConfig(accel_psd_m2_s4_Hz=vc_accel_psd(f))))
+          for f in (PAPER_MODES_HZ[0], PAPER_MODES_HZ[2])],
         AblationRow("no noise", "no DAC, amplifier, gauge or floor noise (quantization kept)",
                     replace(v2, electronics=replace(e, dac_noise=False, amplifier_noise=False, sensor_noise=False),
                             floor=FloorConfig.off())),

@@ -32,10 +32,26 @@ from nanosim import constants as C
 from nanosim.plant.mechanics import home_data, mechanical_matrices
 from nanosim.plant.noise import NormalStream, child_seed
 
-__all__ = ["FloorConfig", "FloorModel", "floor_model", "FloorVibration"]
+__all__ = ["FloorConfig", "FloorModel", "floor_model", "FloorVibration", "vc_accel_psd"]
 
 _FLOOR_STREAM = 4
 _CACHE: dict = {}
+
+
+
+def vc_accel_psd(f_Hz: float, velocity_um_s: float = C.FLOOR_VC_C_VELOCITY_UM_S,
+                 transmissibility: float = C.FLOOR_TABLE_PLATEAU) -> float:
+    """Table-top acceleration PSD, (m/s^2)^2/Hz, of a vibration-criterion floor at ``f_Hz``.
+
+    A VC curve gives the rms velocity ``v`` in each 1/3-octave band (bandwidth 0.2316 f); its
+    acceleration ``2 pi f v`` spread over the band, through the table's ``transmissibility``:
+    ``S_a(f) = (2 pi f v T)^2 / (0.2316 f)``. VC-C through a 0.01 plateau: 4.66e-10 at 175 Hz.
+    """
+    for name, x in (("f_Hz", f_Hz), ("velocity_um_s", velocity_um_s), ("transmissibility", transmissibility)):
+        if not np.isfinite(x) or x <= 0:
+            raise ValueError(f"{name}: expected a finite value > 0, got {x!r}")
+    bandwidth_Hz = (2.0 ** (1.0 / 6.0) - 2.0 ** (-1.0 / 6.0)) * f_Hz
+    return float((2.0 * np.pi * f_Hz * velocity_um_s * 1e-6 * transmissibility) ** 2 / bandwidth_Hz)
 
 
 @dataclass(frozen=True)
