@@ -123,6 +123,29 @@ def test_step_input_validation(npz_path):
         ctrl.run(np.zeros((10, 2)))
 
 
+def test_overflowing_step_raises_and_keeps_the_state():
+    """An input so large that the command overflows (3.37e5 x 6e302; 2 x 1e308) is an error, and the
+    state stays as it was."""
+    big = DiscreteController.from_matrices(np.zeros((1, 1)), np.zeros((1, 3)), np.zeros((1, 1)),
+                                           np.full((1, 3), 3.37e5), DT)
+    with pytest.raises(ValueError, match="error_V: the controller's next state or command overflows"):
+        big.step([0.0, 0.0, 6e302])
+    A, B, C, _ = random_controller(n=4)
+    D = 2.0 * np.eye(3)
+    ctrl, fresh = (DiscreteController.from_matrices(A, B, C, D, DT) for _ in range(2))
+    e = np.array([1e-3, -2e-3, 5e-4])
+    assert np.array_equal(ctrl.step(e), fresh.step(e))
+    with pytest.raises(ValueError, match="overflows"):
+        ctrl.step([1e308, 0.0, 0.0])
+    assert np.array_equal(ctrl.step(e), fresh.step(e))          # the failed step left no trace
+
+
+@pytest.mark.parametrize("n_error", [np.inf, -np.inf, np.nan, 1.5, "two"])
+def test_n_error_must_be_an_integer(n_error):
+    with pytest.raises(ValueError, match="n_error: expected"):
+        ControllerConfig(np.zeros((1, 1)), np.zeros((1, 3)), np.zeros((3, 1)), np.zeros((3, 3)), DT, n_error)
+
+
 def test_step_is_fast(npz_path):
     A, B, C, D = random_controller(n=19)
     ctrl = DiscreteController.from_matrices(A, B, C, D, DT)

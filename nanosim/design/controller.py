@@ -114,7 +114,7 @@ class ControllerConfig:
         ne = nin if self.n_error is None else self.n_error
         try:
             ne_i = int(np.asarray(ne).ravel()[0])
-        except (TypeError, ValueError, IndexError):
+        except (TypeError, ValueError, IndexError, OverflowError):
             raise ValueError(f"n_error: expected an integer, got {self.n_error!r}") from None
         if ne_i != float(np.asarray(ne).ravel()[0]) or not 1 <= ne_i <= nin or (ne_i != nin and nin - ne_i != ne_i):
             raise ValueError(f"n_error: expected {nin} (errors only) or {nin // 2} (errors then measurements), "
@@ -335,6 +335,12 @@ class DiscreteController:
         -------
         ndarray, shape (n_out,)
             Command ``u[k]`` [controller V] (A, B, C); the state advances to k+1.
+
+        Raises
+        ------
+        ValueError
+            A wrong shape, NaN/inf in an input, or an input so large that the next state or the
+            command is not finite; the state is then left as it was.
         """
         e = self._check("error_V", error_V, self._ne)
         xe = self._xe
@@ -348,6 +354,9 @@ class DiscreteController:
             raise ValueError("measurement_V: this controller takes the error only")
         xe[n:n + self._ne] = e
         np.dot(self._M, xe, out=self._out)
+        if not np.isfinite(self._out).all():        # the state is kept as it was
+            raise ValueError(f"error_V: the controller's next state or command overflows (not finite) for this "
+                             f"input (largest |value| {np.abs(xe[n:]).max():.3g} V)")
         xe[:n] = self._out[:n]
         return self._out[n:].copy()
 
