@@ -123,6 +123,7 @@ def test_step_input_validation(npz_path):
         ctrl.run(np.zeros((10, 2)))
 
 
+@pytest.mark.filterwarnings("ignore:overflow encountered in dot:RuntimeWarning")   # numpy's, beside the error
 def test_overflowing_step_raises_and_keeps_the_state():
     """An input so large that the command overflows (3.37e5 x 6e302; 2 x 1e308) is an error, and the
     state stays as it was."""
