@@ -306,7 +306,8 @@ def run_experiments_batch(names: Sequence[str], plants: Sequence[MemberPlant], c
         Electromechanics (default: every effect on).
     exact : bool
         Bit-for-bit single-stage products (see :class:`BatchController`); default the
-        faster BLAS-3 products (equal to 1e-12 relative).
+        faster products: a ``gemm`` for shared matrices, members side by side for per-member ones
+        (equal to 1e-12 relative).
     nthread : int, optional
         Threads stepping MuJoCo members.
     progress : callable, optional

@@ -335,7 +335,8 @@ class BatchTwinStage(_BatchStageBase):
 
     def kernel_twin(self) -> tuple:
         """The twin for :func:`nanosim.plant.batch_kernel.twin_closed_loop`:
-        ``(mode, A, B, C, D, P, x)``, matrices as ``(1 or B, ., .)`` stacks, ``x`` a contiguous copy.
+        ``(mode, A, B, C, D, P, x)``, matrices as ``(1 or B, ., .)`` stacks (a per-member ``P``, mode 3,
+        members last: ``(m, k, B)``), ``x`` a contiguous copy.
         """
         e3 = np.zeros((1, 0, 0))
         x = np.ascontiguousarray(self._x)

@@ -38,7 +38,6 @@ _FLOOR_STREAM = 4
 _CACHE: dict = {}
 
 
-
 def vc_accel_psd(f_Hz: float, velocity_um_s: float = C.FLOOR_VC_C_VELOCITY_UM_S,
                  transmissibility: float = C.FLOOR_TABLE_PLATEAU) -> float:
     """Table-top acceleration PSD, (m/s^2)^2/Hz, of a vibration-criterion floor at ``f_Hz``.
