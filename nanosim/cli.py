@@ -407,6 +407,7 @@ def _add_design_arguments(parser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``nanosim`` argument parser (one-line usage errors, exit 2)."""
+    from nanosim.design.architectures import BENCH
     from nanosim.pipeline.seeds import MAX_SEEDS
     from nanosim.pipeline.sweep import param_names          # the names parse_param accepts
     from nanosim.plant.modes import MODES_LIST_MAX_HZ
@@ -504,9 +505,8 @@ def build_parser() -> argparse.ArgumentParser:
     cp = sub.add_parser("compare", help="controllers through the Section 5 suite and the robustness analysis, "
                                         "scored (scorecard.md/.html/.json)")
     cp.add_argument("--controllers", nargs="+", required=True, metavar="CTRL",
-                    help="bench names (paper, hinf-damped, pi-notch, damping-tracking, robust, feedforward, lqg, "
-                         "lqg-nominal), "
-                         ".npz/.mat state spaces (A, B, C, D, dt) or module:function returning a controller object")
+                    help=f"bench names ({', '.join(BENCH)}), .npz/.mat state spaces (A, B, C, D, dt) or "
+                         "module:function returning a controller object")
     compare_seeds = _field_default(CompareConfig, "seeds")
     cp.add_argument("--seeds", type=_seeds(sort=True), default=compare_seeds,
                     help=f"seeds, a range like 0-4 or a list (default {','.join(map(str, compare_seeds))}; "

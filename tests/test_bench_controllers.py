@@ -1,4 +1,4 @@
-"""Controller bench (#13): the six architectures, the loader of user controllers, nanosim compare, the viewer switch.
+"""Controller bench (#13): the architectures, the loader of user controllers, nanosim compare, the viewer switch.
 
 Model: ``tests/data/identified_seed0.npz`` is ``model.npz`` of ``nanosim identify --seed 0`` (the
 stage as of this commit), so the designs are checked against an identified model, not the
@@ -87,6 +87,36 @@ def test_pi_notch_meets_its_disk_margin_rule_and_the_rule_is_tight(designs, mode
                                  p["notch_zeta"])
     Gf = freqresp_z(model, f)
     assert loop_at_a_time_alpha(Gf, freqresp_z(K_more, f), IDENTIFIED_DELAY_SAMPLES, DT_S, f) < 0.5  # 5 % more gain
+
+
+def test_lqg_gain_range_holds_its_disk_margin_at_both_ends_of_the_piezo_gain_range(designs, model):
+    """The lqg-gain-range design: multiloop disk margin >= 0.42 on the identified model (the slope after a reversal)
+    and at the set's top, 1.36 x (a monotone move, the linear twin's gain), on an independent grid; stable at every
+    vertex, mixed mu < 1. The default lqg keeps less at the top; every cheaper member failed a check."""
+    from nanosim.design.architectures.common import disk_margin_summary, freqresp_z, loop_response
+    from nanosim.design.architectures.lqg import ROBUST_MIN_DISK_MARGIN, design_input_gains
+    d = designs["lqg-gain-range"]
+    p = d.parameters
+    top = design_input_gains((1.0,))[0]
+    assert d.name == "lqg-gain-range" and p["gain_range_margin"] is True and p["robust_rule_met"] is True
+    assert p["design_input_gain"] >= top * (1 - 1e-12) and p["top_of_gain_range"] == top
+    assert p["uncertainty_vertices"]["all_stable"] and p["mu_peak"] < 1.0
+    f = np.unique(np.concatenate([np.geomspace(0.1, 1999.0, 900), np.linspace(440, 520, 400)]))
+    Gf = freqresp_z(model, f)
+    dms = {}
+    for name in ("lqg", "lqg-gain-range"):
+        Ke, Ky = designs[name].split()
+        dms[name] = [disk_margin_summary(loop_response(Gf * g, f, Ke, Ky, delay_samples=0))["multiloop"]
+                     for g in (1.0, top)]
+    assert min(dms["lqg-gain-range"]) >= ROBUST_MIN_DISK_MARGIN - 0.005, dms
+    assert dms["lqg"][1] < ROBUST_MIN_DISK_MARGIN < dms["lqg"][0], dms
+    assert dms["lqg-gain-range"][1] == pytest.approx(p["predicted_disk_margin_top_of_gain_range"]["multiloop"],
+                                                     abs=0.005)
+    for row in p["tried"]:
+        if row["predicted_sigma_nm"] < p["predicted_noise_sigma_nm"]:
+            assert (row["spectral_radius"] >= 1.0 or row["multiloop_disk_margin"] < ROBUST_MIN_DISK_MARGIN
+                    or row["multiloop_disk_margin_top"] < ROBUST_MIN_DISK_MARGIN
+                    or row["worst_spectral_radius"] >= 1.0 or row["mu_peak"] >= 1.0), row
 
 
 def test_hinf_damped_uses_the_pipeline_defaults():

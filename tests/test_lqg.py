@@ -155,7 +155,12 @@ def test_robust_lqg_is_stable_over_the_whole_uncertainty_set_with_the_disk_margi
     assert p["design_input_gain"] in design_input_gains() and p["design_input_gain"] > 1.1
     top = STAGE_UNCERTAINTY.input_gain_range_about(IDENTIFIED_INPUT_GAIN_OF_NOMINAL)[1]
     r_top = loop_response(freqresp_z(model, f) * top, f, Ke, Ky, delay_samples=0)
-    assert disk_margin_summary(r_top)["multiloop"] >= 0.3
+    dm_top = disk_margin_summary(r_top)["multiloop"]
+    assert dm_top >= 0.3
+    # recorded as it is, below the 0.42 the rule asks at the identified gain: the lqg-gain-range design asks it there
+    assert p["top_of_gain_range"] == pytest.approx(top, rel=1e-12) and p["gain_range_margin"] is False
+    assert dm_top == pytest.approx(p["predicted_disk_margin_top_of_gain_range"]["multiloop"], abs=0.005)
+    assert dm_top < p["predicted_disk_margin"]["multiloop"]
     # the reference prefilter: one notch on the 450-458 Hz ring (2-5 % of a step, above the prefilter's 1 %), none
     # left; the feedback is the checked member's (the worst vertex's spectral radius, recorded before the
     # prefilter, is the final loop's)
@@ -273,3 +278,17 @@ def test_lqg_designed_at_the_identified_gain_is_not_robust_over_the_set(model):
     assert d.parameters["robust_rule_met"] is False and d.parameters["design_input_gain"] == 1.0
     with pytest.raises(ValueError, match="design_input_gain: expected a finite real number > 0.0, got 0"):
         design_lqg(model, design_input_gain=0)
+
+
+def test_gain_range_rule_designed_at_the_identified_gain_takes_the_largest_margin_at_the_top(model):
+    """The gain-range rule with the design model at the identified gain: no member keeps 0.42 at the set's top
+    (1.36 x the identified gain), so it says so (a warning naming the top, robust_rule_met False) and takes the member
+    with the largest margin there, still with the margin at the identified gain."""
+    from nanosim.design.architectures.lqg import ROBUST_MIN_DISK_MARGIN
+    with pytest.warns(UserWarning, match="at the top of the uncertainty set's gain range.*robust_rule_met"):
+        d = design_lqg(model, design_input_gain=1.0, gain_range_margin=True, reference_prefilter=False)
+    p = d.parameters
+    assert p["robust_rule_met"] is False and p["gain_range_margin"] is True and p["mu_peak"] is None
+    tops = [r["multiloop_disk_margin_top"] for r in p["tried"] if "multiloop_disk_margin_top" in r]
+    assert tops and max(tops) < 0.3 and p["predicted_disk_margin_top_of_gain_range"]["multiloop"] == max(tops)
+    assert p["predicted_disk_margin"]["multiloop"] >= ROBUST_MIN_DISK_MARGIN

@@ -20,8 +20,8 @@ __all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConf
 # design layer uses them too), re-exported here
 # the exported controller of `nanosim design` (#13, chosen by the bench's scorecard rule): "lqg" is the bench
 # design nanosim.design.architectures.lqg; "hinf" the H-infinity design these settings describe (the paper's
-# with --paper-design, else hinf-damped)
-DESIGN_ARCHITECTURES = ("lqg", "hinf")
+# with --paper-design, else hinf-damped); "lqg-gain-range" the lqg with its disk margin held over the piezo's gain range
+DESIGN_ARCHITECTURES = ("lqg", "hinf", "lqg-gain-range")
 DEFAULT_ARCHITECTURE = "lqg"
 
 
@@ -89,8 +89,9 @@ class DesignConfig:
         0 = none (the paper).
     architecture : str
         The exported controller: ``"lqg"`` (default, :mod:`nanosim.design.architectures.lqg`; the
-        H-infinity design is still made and described in ``design.json`` as the reference) or
-        ``"hinf"`` (the H-infinity design itself).
+        H-infinity design is still made and described in ``design.json`` as the reference),
+        ``"lqg-gain-range"`` (the same with its disk margin required at both ends of the piezo's gain
+        range, ``gain_range_margin=True``) or ``"hinf"`` (the H-infinity design itself).
     """
 
     reduced_order: int = DEFAULT_REDUCED_ORDER

@@ -219,12 +219,13 @@ def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNC
     return doc
 
 
-def _export_lqg(out: Path, G, dt: float, loop_delay: int, units, say) -> dict:
-    """Overwrite ``controller.npz`` with the LQG bench design (:mod:`nanosim.design.architectures.lqg`);
-    the ``design.json`` entries that say so.
+def _export_lqg(out: Path, G, dt: float, loop_delay: int, units, say,
+                architecture: str = "lqg") -> dict:
+    """Overwrite ``controller.npz`` with the LQG bench design ``architecture`` (``"lqg"`` or
+    ``"lqg-gain-range"``, :mod:`nanosim.design.architectures.lqg`); the ``design.json`` entries that say so.
     """
     from nanosim.design.architectures.lqg import design_lqg
-    bd = design_lqg(G, dt=dt, delay_samples=loop_delay)
+    bd = design_lqg(G, dt=dt, delay_samples=loop_delay, gain_range_margin=architecture == "lqg-gain-range")
     Akd, Bkd, Ckd, Dkd, _ = bd.matrices
     lqg_units = np.array([*units[:2], "inputs [e; y]: e = r - y (n_error = 3 columns), then the measurement y in "
                           "sensor volts", "u = Ckd x + Dkd [e; y], x[k+1] = Akd x[k] + Bkd [e; y] (discrete only)",
@@ -233,13 +234,16 @@ def _export_lqg(out: Path, G, dt: float, loop_delay: int, units, say) -> dict:
                      n_error=np.int64(bd.n_error), units=lqg_units, sign_convention=np.array(SIGN_CONVENTION),
                      method=np.array("lqg"), tuning_rule=np.array(bd.tuning_rule))
     p = bd.parameters
-    say(f"exported controller: lqg ({bd.K.nstates} states), predicted multiloop disk margin "
-        f"{p['predicted_disk_margin']['multiloop']:.3f}, S bandwidth {p['predicted_bandwidth_S_hz']:.1f} Hz")
-    return {"architecture": "lqg",
-            "exported_controller": {"architecture": "lqg", "tuning_rule": bd.tuning_rule,
+    say(f"exported controller: {architecture} ({bd.K.nstates} states), predicted multiloop disk margin "
+        f"{p['predicted_disk_margin']['multiloop']:.3f} (at the top of the piezo's gain range "
+        f"{p['predicted_disk_margin_top_of_gain_range']['multiloop']:.3f}), S bandwidth "
+        f"{p['predicted_bandwidth_S_hz']:.1f} Hz")
+    default = ", the bench's default by the scorecard rule" if architecture == "lqg" else ""
+    return {"architecture": architecture,
+            "exported_controller": {"architecture": architecture, "tuning_rule": bd.tuning_rule,
                                     "controller_order": int(bd.K.nstates), "parameters": p},
-            "architecture_note": ("controller.npz holds the lqg design (nanosim.design.architectures.lqg, the "
-                                  "bench's default by the scorecard rule); gamma, S/T peaks and bandwidths, "
+            "architecture_note": (f"controller.npz holds the {architecture} design (nanosim.design.architectures.lqg"
+                                  f"{default}); gamma, S/T peaks and bandwidths, "
                                   "controller_order and the closed_loop_* entries describe the H-infinity "
                                   "reference design of these settings (nanosim design --architecture hinf)")}
 
@@ -435,8 +439,9 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
         summary["versions"] = {"control": _c.__version__, "slycot": _s.__version__, "numpy": np.__version__}
     except Exception:  # pragma: no cover
         pass
-    if cfg.architecture == "lqg":
-        summary.update(_export_lqg(out, Gd_full if Gd_full is not None else G_full, dt, loop_delay, units, say))
+    if cfg.architecture != "hinf":
+        summary.update(_export_lqg(out, Gd_full if Gd_full is not None else G_full, dt, loop_delay, units, say,
+                                   cfg.architecture))
     else:
         summary["architecture"] = "hinf"
     fileio.write_json(out / A.DESIGN_JSON, summary)

@@ -1,4 +1,4 @@
-"""The controller bench: eight designs, each a pure function of the identified model.
+"""The controller bench: nine designs, each a pure function of the identified model.
 
 ``design_X(G, *, dt=250e-6, delay_samples=0, ...) -> BenchDesign`` (a discrete
 ``Akd, Bkd, Ckd, Dkd, dt, n_error`` controller with its tuning rule), for
@@ -11,7 +11,9 @@
 * ``feedforward`` (:mod:`.feedforward`) -- model-inversion feedforward on top of a feedback design;
 * ``lqg`` (:mod:`.lqg`) -- H2-optimal output feedback with integral action from the stage's noise levels,
   robust over the uncertainty set; ``lqg-nominal`` -- the same designed on the identified modes (not robust
-  to one extra sample of delay with the modes 3 % higher).
+  to one extra sample of delay with the modes 3 % higher); ``lqg-gain-range`` -- the robust lqg with its disk
+  margin required at both ends of the set's piezo-gain range (the identified slope after a reversal and the
+  nominal slope of a monotone move), designed at the range's top.
 
 :mod:`.protocol` turns a name, a file or ``module:function`` into a controller.
 """
@@ -61,6 +63,13 @@ def _lqg_nominal(G, **kw):
     return dataclasses.replace(design_lqg(G, robust=False, **kw), name="lqg-nominal")
 
 
+def _lqg_gain_range(G, **kw):
+    import dataclasses
+
+    from nanosim.design.architectures.lqg import design_lqg
+    return dataclasses.replace(design_lqg(G, gain_range_margin=True, **kw), name="lqg-gain-range")
+
+
 def _feedforward(G, **kw):
     from nanosim.design.architectures.feedforward import design_feedforward
     return design_feedforward(G, **kw)
@@ -76,6 +85,7 @@ BENCH: dict[str, Callable[..., BenchDesign]] = {
     "feedforward": _feedforward,
     "lqg": _lqg,
     "lqg-nominal": _lqg_nominal,
+    "lqg-gain-range": _lqg_gain_range,
 }
 
 
