@@ -22,8 +22,10 @@ from nanosim.design.architectures import BENCH, design  # noqa: E402
 from nanosim.design.architectures.common import (  # noqa: E402
     DT_S,
     closed_loop_spectral_radius,
+    disk_margin_summary,
     freqresp_z,
     loop_at_a_time_alpha,
+    loop_response,
 )
 from nanosim.design.lti import load_state_space_npz  # noqa: E402
 from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES  # noqa: E402
@@ -89,11 +91,61 @@ def test_pi_notch_meets_its_disk_margin_rule_and_the_rule_is_tight(designs, mode
     assert loop_at_a_time_alpha(Gf, freqresp_z(K_more, f), IDENTIFIED_DELAY_SAMPLES, DT_S, f) < 0.5  # 5 % more gain
 
 
+def test_robust_lqg_is_stable_over_the_whole_uncertainty_set_with_the_disk_margin(designs, model):
+    """The default (robust) rule on the identified seed-0 model: all 96 plants stable, mixed mu < 1 over the set,
+    multiloop disk margin >= 0.42 on an independent grid, bandwidth >= 32 Hz; every cheaper member it passed
+    over failed one of its checks."""
+    from nanosim.design.architectures.lqg import ROBUST_MIN_DISK_MARGIN
+    d = designs["lqg"]
+    p = d.parameters
+    assert p["rule"] == "robust" and p["design_freq_scale"] >= 1.03
+    v = p["uncertainty_vertices"]
+    assert v["all_stable"] and v["n_unstable"] == 0 and v["worst_spectral_radius"] < 1.0, v
+    assert p["mu_peak"] < 1.0
+    Ke, Ky = d.split()
+    f = np.unique(np.concatenate([np.geomspace(0.1, 1999.0, 900), np.linspace(440, 520, 400)]))
+    r = loop_response(freqresp_z(model, f), f, Ke, Ky, delay_samples=0)
+    assert disk_margin_summary(r)["multiloop"] >= ROBUST_MIN_DISK_MARGIN - 0.005
+    assert p["predicted_bandwidth_S_hz"] >= 32.0
+    # designed with the piezo inside the set (above the identified gain), the loop keeps a disk margin of 0.3 at the
+    # set's top, 1.36 x the identified gain (a monotone move); designed at the identified gain it had 0.14-0.15
+    from nanosim.design.architectures.lqg import design_input_gains
+    from nanosim.design.robustness import IDENTIFIED_INPUT_GAIN_OF_NOMINAL
+    from nanosim.design.uncertainty import STAGE_UNCERTAINTY
+    assert p["design_input_gain"] in design_input_gains() and p["design_input_gain"] > 1.1
+    top = STAGE_UNCERTAINTY.input_gain_range_about(IDENTIFIED_INPUT_GAIN_OF_NOMINAL)[1]
+    r_top = loop_response(freqresp_z(model, f) * top, f, Ke, Ky, delay_samples=0)
+    dm_top = disk_margin_summary(r_top)["multiloop"]
+    assert dm_top >= 0.3
+    # recorded as it is, below the 0.42 the rule asks at the identified gain: the lqg-gain-range design asks it there
+    assert p["top_of_gain_range"] == pytest.approx(top, rel=1e-12) and p["gain_range_margin"] is False
+    assert dm_top == pytest.approx(p["predicted_disk_margin_top_of_gain_range"]["multiloop"], abs=0.005)
+    assert dm_top < p["predicted_disk_margin"]["multiloop"]
+    # the reference prefilter: one notch on the 450-458 Hz ring (2-5 % of a step, above the prefilter's 1 %), none
+    # left; the feedback is the checked member's (the worst vertex's spectral radius, recorded before the
+    # prefilter, is the final loop's)
+    from nanosim.design.architectures.prefilter import RING_MIN_STEP_FRACTION
+    pf = p["reference_prefilter"]
+    assert len(pf["notches"]) == 1 and 440.0 < pf["notches"][0]["freq_hz"] < 470.0, pf["notches"]
+    assert max(q["step_fraction"] for q in pf["ringing_pairs"]) > 2 * RING_MIN_STEP_FRACTION
+    assert pf["ringing_pairs_after"] == []
+    assert pf["prefilter_states"] == 6 and p["controller_order"] == d.K.nstates
+    from nanosim.design.uncertainty import ModalPlant
+    w = v["worst"]
+    P = ModalPlant(model, DT_S).state_space(w["freq_scale"], w["damping_scale"], np.array(w["input_gain"]),
+                                            w["extra_delay_samples"])
+    assert closed_loop_spectral_radius(P, Ke, Ky, 0) == pytest.approx(v["worst_spectral_radius"], rel=1e-9)
+    for row in p["tried"]:
+        if row["predicted_sigma_nm"] >= p["predicted_noise_sigma_nm"]:
+            continue
+        assert (row["spectral_radius"] >= 1.0 or row["multiloop_disk_margin"] < ROBUST_MIN_DISK_MARGIN
+                or row["worst_spectral_radius"] >= 1.0 or row["mu_peak"] >= 1.0), row
+
+
 def test_lqg_gain_range_holds_its_disk_margin_at_both_ends_of_the_piezo_gain_range(designs, model):
     """The lqg-gain-range design: multiloop disk margin >= 0.42 on the identified model (the slope after a reversal)
     and at the set's top, 1.36 x (a monotone move, the linear twin's gain), on an independent grid; stable at every
     vertex, mixed mu < 1. The default lqg keeps less at the top; every cheaper member failed a check."""
-    from nanosim.design.architectures.common import disk_margin_summary, freqresp_z, loop_response
     from nanosim.design.architectures.lqg import ROBUST_MIN_DISK_MARGIN, design_input_gains
     d = designs["lqg-gain-range"]
     p = d.parameters

@@ -138,7 +138,8 @@ def test_run_design_two_dof_controller_rings_less(tmp_path):
     for name, zeta in (("single", None), ("damped", 0.1)):
         out = tmp_path / name
         cfg = DesignConfig.paper(damping_zeta=zeta or 0.0, damping_lowpass_hz=2000.0)
-        d = run_design(model, out, cfg, progress=False)
+        d = run_design(model, out, cfg, progress=False, figures=False)
+        assert not list(out.glob("*.png")) and (out / "robustness.json").is_file()     # figures=False: files only
         z = np.load(out / "controller.npz", allow_pickle=False)
         ctrl = DiscreteController.from_npz(out / "controller.npz")
         assert ctrl.two_dof == (zeta is not None)

@@ -173,7 +173,8 @@ def _with_input_delay(G, delay_s: float):
     return ct.ss(Gs.A, Gs.B, Gs.C, Gs.D)
 
 
-def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNCERTAINTY, mu: bool = True) -> dict:
+def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNCERTAINTY, mu: bool = True,
+                     figures: bool = True) -> dict:
     """``robustness.json`` and its figures for one discrete controller on the loop as run.
 
     Parameters
@@ -189,6 +190,8 @@ def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNC
     uncertainty : UncertaintySet
     mu : bool
         Include the mu analysis.
+    figures : bool
+        Write the two figures (False: ``robustness.json`` only).
 
     Returns
     -------
@@ -212,6 +215,8 @@ def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNC
         if vals:
             doc[f"worst_{key}"] = min(vals) if "alpha" in key else max(vals)
     fileio.write_json(out / A.ROBUSTNESS_JSON, doc)
+    if not figures:
+        return doc
     labels = {k: a.label for k, a in analyses.items()}
     by_label = {labels[k]: a for k, a in analyses.items()}
     fileio.save_figure(plot_loop_singular_values(by_label), out / A.FIG23_ROBUSTNESS_SIGMA)
@@ -260,7 +265,7 @@ def _input_ref(path, out_dir) -> dict:
 
 @single_threaded_blas
 def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=None, progress: bool = False,
-               dt: float | None = None) -> Design:
+               dt: float | None = None, figures: bool = True) -> Design:
     """Reduce, design, discretize and export (paper Sec. 4).
 
     Parameters
@@ -283,6 +288,9 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
         Print stage messages to stderr.
     dt : float, optional
         Controller sample time [s]; default the model's ``dt`` or 1/4000.
+    figures : bool, default True
+        Write the PNG figures (False: the files without them, e.g. a sweep's scratch design; about half
+        of the step's time).
 
     Returns
     -------
@@ -455,7 +463,10 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
     # the identified discrete model is in the record-row convention; a ZOH discretization is not
     plants["identified"] = (LoopPlant.identified(Gd, delay_samples=loop_delay) if Gd is Gd_full
                             else LoopPlant.twin(Gd, label="full model"))
-    write_robustness(out, out / A.CONTROLLER_NPZ, plants)
+    write_robustness(out, out / A.CONTROLLER_NPZ, plants, figures=figures)
+    if not figures:
+        say(f"done in {time.perf_counter() - t_start:.1f} s (no figures) -> {out}")
+        return dataclasses.replace(d, reduction=red, discretization=disc)
 
     say("writing figures")
     figs = {

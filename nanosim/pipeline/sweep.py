@@ -189,7 +189,7 @@ def design_for_point(model, config: DesignConfig | None = None, seed: int = 0) -
         save_model(tmp / A.MODEL_NPZ, ident)
         t = mech.sys_V
         write_npz(tmp / A.TWIN_NPZ, A=t.A, B=t.B, C=t.C, D=t.D, dt=mech.dt_s)
-        run_design(tmp / A.MODEL_NPZ, tmp, config or DesignConfig(), twin=str(tmp / A.TWIN_NPZ))
+        run_design(tmp / A.MODEL_NPZ, tmp, config or DesignConfig(), twin=str(tmp / A.TWIN_NPZ), figures=False)
         ctrl = DiscreteController.from_npz(tmp / A.CONTROLLER_NPZ).config
         des = json.loads((tmp / A.DESIGN_JSON).read_text())
     return ctrl, {"gamma": des.get("gamma"), "controller_order": int(ctrl.n_states),
