@@ -402,7 +402,9 @@ def _add_design_arguments(parser) -> None:
                         help="the paper's set-up: 10-state model, single H-infinity loop, no damping loop")
     parser.add_argument("--architecture", choices=DESIGN_ARCHITECTURES, default=DEFAULT_ARCHITECTURE,
                         help=f"exported controller (default {DEFAULT_ARCHITECTURE}, the bench's default by the "
-                             "scorecard rule; hinf: the H-infinity design of --weights/--reduced-order/--damping-zeta)")
+                             "scorecard rule; lqg-gain-range: the lqg with its disk margin over the piezo's whole gain "
+                             "range, slower steps; hinf: the H-infinity design of "
+                             "--weights/--reduced-order/--damping-zeta)")
 
 
 def build_parser() -> argparse.ArgumentParser:
