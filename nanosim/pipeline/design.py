@@ -229,8 +229,8 @@ def _export_lqg(out: Path, G, dt: float, loop_delay: int, units, say,
     """Overwrite ``controller.npz`` with the LQG bench design ``architecture`` (``"lqg"`` or
     ``"lqg-gain-range"``, :mod:`nanosim.design.architectures.lqg`); the ``design.json`` entries that say so.
     """
-    from nanosim.design.architectures.lqg import design_lqg
-    bd = design_lqg(G, dt=dt, delay_samples=loop_delay, gain_range_margin=architecture == "lqg-gain-range")
+    from nanosim.design.architectures import design
+    bd = design(architecture, G, dt=dt, delay_samples=loop_delay)
     Akd, Bkd, Ckd, Dkd, _ = bd.matrices
     lqg_units = np.array([*units[:2], "inputs [e; y]: e = r - y (n_error = 3 columns), then the measurement y in "
                           "sensor volts", "u = Ckd x + Dkd [e; y], x[k+1] = Akd x[k] + Bkd [e; y] (discrete only)",
