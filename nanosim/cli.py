@@ -22,7 +22,7 @@ from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import (DEFAULT_ARCHITECTURE, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER,
                                      DESIGN_ARCHITECTURES, CharacterizeConfig, CompareConfig, DesignConfig,
                                      IdentifyConfig, MonteCarloConfig, PipelineConfig)
-from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_REDUCED_ORDER
+from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_PRBS_BANDS_HZ, PAPER_REDUCED_ORDER
 
 __all__ = ["build_parser", "main"]
 
@@ -220,7 +220,8 @@ def _cmd_identify(args) -> int:
     from nanosim.pipeline.run import step_identify
     from nanosim.pipeline.runfolder import staged_run
 
-    cfg = IdentifyConfig(seed=args.seed, order=args.order, ideal=args.ideal, shared_poles=args.shared_poles)
+    cfg = IdentifyConfig(seed=args.seed, order=args.order, ideal=args.ideal, shared_poles=args.shared_poles,
+                         bands_hz=PAPER_PRBS_BANDS_HZ if args.paper_bands else C.DEFAULT_PRBS_BANDS_HZ)
     _check_mjcf(args)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
@@ -439,6 +440,9 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--per-column-poles", dest="shared_poles", action="store_false",
                    help="keep each column's own estimate of every mode, as the paper (default: the modes the "
                         "columns share re-estimated jointly, one pole per mode)")
+    i.add_argument("--paper-bands", action="store_true",
+                   help="PRBS in the paper's 50/100/200 Hz bands only (default: also a 1 kHz band, which "
+                        "excites the 740 Hz mode)")
     i.add_argument("--mjcf", default=None, type=_file)
     i.set_defaults(func=_cmd_identify)
     d = sub.add_parser("design", help="reduce the model and synthesize the H-infinity controller")

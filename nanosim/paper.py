@@ -16,7 +16,7 @@ __all__ = [
     "PAPER_IDENTIFIED_ORDER_PER_COLUMN", "PAPER_REDUCED_ORDER", "PAPER_APPENDIX_A_DAMPING",
     "PAPER_MODE_DAMPING_MEAN", "PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ", "PAPER", "PAPER_FULL_STROKE_UM",
     "PAPER_OPEN_LOOP_TRAVEL_UM", "PAPER_HYSTERESIS_INPUT_PERCENT", "PAPER_CREEP_POLE_RAD_S",
-    "PAPER_CREEP_ZERO_OVER_POLE", "PAPER_STEP_UM", "PAPER_CONTOUR_SPEED_UM_S",
+    "PAPER_CREEP_ZERO_OVER_POLE", "PAPER_PRBS_BANDS_HZ", "PAPER_STEP_UM", "PAPER_CONTOUR_SPEED_UM_S",
     "Band", "BANDS", "MODE_REL_TOL",
     "STATIC_GAIN_REL_TOL", "CLOSURE_VIOLATION_MAX", "SMALL_STEP_TOL_NM",
 ]
@@ -31,6 +31,9 @@ PAPER_HYSTERESIS_INPUT_PERCENT = 14.0          # open-loop input hysteresis (%),
 # zero / pole ratios from ... to (-)
 PAPER_CREEP_POLE_RAD_S = (28.97, 33.11)
 PAPER_CREEP_ZERO_OVER_POLE = (1.08, 1.11)
+
+# --- identification (Sec. 3, Fig. 4a): a step, then PRBS in three bands of 1 s each, at most 0.5 V ----------
+PAPER_PRBS_BANDS_HZ = (50.0, 100.0, 200.0)
 
 # --- identified modes (Sec. 3, Fig. 5) ---------------------------------------
 PAPER_MODES_HZ = (175.0, 179.0, 245.0, 460.0, 474.0, 740.0)

@@ -177,7 +177,8 @@ def test_identified_gain_is_the_piezo_gain_under_the_identification_excitation(s
     from nanosim.experiments.sysid import IdentifySettings
     from nanosim.plant.piezo import PiezoConfig, PiezoModel
     fs = constants.CONTROL_RATE_HZ
-    ex = ident.paper_excitation(fs=fs, amplitude=IdentifySettings().amplitude_V, seed=seed)
+    settings = IdentifySettings()
+    ex = ident.paper_excitation(fs=fs, amplitude=settings.amplitude_V, bands_hz=settings.bands_hz, seed=seed)
     v = np.zeros((ex.u.size, 3))
     v[:, 0] = ex.u * constants.AMPLIFIER_GAIN
     h = PiezoModel(PiezoConfig(), n_channels=3).run(v)[:, 0] / constants.AMPLIFIER_GAIN

@@ -9,7 +9,8 @@ import math
 import os
 from dataclasses import dataclass, field, replace
 
-from nanosim.constants import DEFAULT_DAMPING_LOWPASS_HZ, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER
+from nanosim.constants import (DEFAULT_DAMPING_LOWPASS_HZ, DEFAULT_DAMPING_ZETA, DEFAULT_PRBS_BANDS_HZ,
+                               DEFAULT_REDUCED_ORDER)
 from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_REDUCED_ORDER
 
 __all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConfig", "MonteCarloConfig",
@@ -48,6 +49,9 @@ class IdentifyConfig:
     shared_poles : bool
         Re-estimate the resonances the columns share jointly, one pole per mode (default);
         False keeps each column's own estimate, as the paper.
+    bands_hz : tuple of float
+        PRBS band edges [Hz], one 1 s segment each, every edge in (0, 2000]: the paper's 50, 100 and
+        200 Hz and a 1 kHz band for the 740 Hz mode (default); ``PAPER_PRBS_BANDS_HZ`` is the paper's.
     """
 
     seed: int = 0
@@ -55,6 +59,7 @@ class IdentifyConfig:
     ideal: bool = False
     operating_points_piezo_V: tuple = (0.0, 80.0)
     shared_poles: bool = True
+    bands_hz: tuple = DEFAULT_PRBS_BANDS_HZ
 
     def __post_init__(self):
         _check_seed(self.seed)
@@ -62,6 +67,11 @@ class IdentifyConfig:
                                        or not 0 <= self.order <= 60):
             raise ValueError(f"order: expected an integer in [0, 60] (0: choose from singular values), "
                              f"got {self.order!r}")
+        bands = self.bands_hz
+        if (not isinstance(bands, tuple) or not bands
+                or not all(isinstance(b, (int, float)) and not isinstance(b, bool) and 0 < b <= 2000 for b in bands)):
+            raise ValueError(f"bands_hz: expected a non-empty tuple of band edges in (0, 2000] Hz (half the 4 kHz "
+                             f"sampling rate), got {bands!r}")
 
 
 @dataclass(frozen=True)

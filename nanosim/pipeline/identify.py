@@ -1,6 +1,7 @@
 """Identify the stage from data, as the paper does (Sec. 3).
 
-One experiment per actuator (step + PRBS in 50/100/200 Hz bands, at most
+One experiment per actuator (step + PRBS in the paper's 50/100/200 Hz bands
+and a 1 kHz band for the 740 Hz mode, ``IdentifyConfig.bands_hz``; at most
 0.5 controller volts, 4 kHz), a 3x1 discrete model per column by subspace
 identification, the 3x3 model assembled block-diagonally (39 states for
 13 per column), continuous time by the inverse Tustin transform. Fit factors
@@ -66,7 +67,8 @@ def identify_json(result: IdentifiedStage, extra: dict | None = None) -> dict:
         "column_modes": result.modes,
         "settings": {"seed": s.seed, "order_per_column": s.order_per_column, "amplitude_V": s.amplitude_V,
                      "offset_piezo_V": s.offset_piezo_V, "ideal_stage": s.ideal, "shared_poles": s.shared_poles,
-                     "excitation": "step + PRBS 50/100/200 Hz, 1 s each, 4 kHz, one actuator at a time",
+                     "prbs_bands_hz": list(s.bands_hz),
+                     "excitation": "step + PRBS in prbs_bands_hz, 1 s each, 4 kHz, one actuator at a time",
                      "validation": "separate record with another PRBS seed"},
         "dc_gain_sensor_V_per_V": np.real(ct.dcgain(result.sysc)).round(5).tolist(),
         "units": {"fit_percent": "%", "modes_hz": "Hz", "dc_gain_sensor_V_per_V": "sensor V per controller V",
@@ -130,7 +132,7 @@ def run_identify(out_dir, config: IdentifyConfig | None = None, *, model=None, t
     results = []
     for op in ops:
         s = IdentifySettings(seed=cfg.seed, order_per_column=cfg.order or None, offset_piezo_V=op, ideal=cfg.ideal,
-                             shared_poles=cfg.shared_poles)
+                             shared_poles=cfg.shared_poles, bands_hz=tuple(float(b) for b in cfg.bands_hz))
         results.append(identify_stage(s, model=model, progress=progress))
         if progress:
             progress(f"identified at {op:g} V")
