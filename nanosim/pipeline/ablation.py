@@ -50,7 +50,7 @@ from nanosim.experiments.contouring import contouring
 from nanosim.experiments.resolution import resolution
 from nanosim.experiments.sysid import IdentifySettings, identify_stage
 from nanosim.fileio import write_npz
-from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S, PAPER_MODES_HZ, PAPER_STEP_UM
+from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S, PAPER_MODES_HZ, PAPER_PRBS_BANDS_HZ, PAPER_STEP_UM
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import DesignConfig
 from nanosim.pipeline.design import run_design
@@ -165,9 +165,8 @@ class AblationPlant:
 
 def _design(plant: AblationPlant, row: AblationRow, seed: int, work: Path) -> Path:
     cfg = StageConfig.ideal() if row.identify_ideal else row.config
-    res = identify_stage(IdentifySettings(seed=seed, ideal=row.identify_ideal, shared_poles=False), model=plant.model,
-                         config=cfg,
-                         runner=plant.runner())
+    settings = IdentifySettings(seed=seed, ideal=row.identify_ideal, shared_poles=False, bands_hz=PAPER_PRBS_BANDS_HZ)
+    res = identify_stage(settings, model=plant.model, config=cfg, runner=plant.runner())
     npz = save_model(work / A.MODEL_NPZ, res)
     if row.model_freq_scale != 1.0:
         # every pole x s, same DC gain: G_s(s) = C (s I - s A)^-1 s B + D = G(s / s_)
