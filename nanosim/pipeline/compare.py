@@ -9,8 +9,9 @@ For every controller (a bench design from the identified model, a state-space fi
    (:func:`feedback_sensitivity`) -- for a two-degree-of-freedom controller the
    reference-to-error map of the bandwidth experiment is not the loop's sensitivity;
 3. once per linear controller (seed-independent): ``robustness.json`` and its figures on
-   the identified model as it is (it is the loop as run) and on the linear twin with the loop's
-   one-sample delay
+   the identified model as it is (it is the loop as run) and on the linear twin as the loop
+   runs it: the one-sample delay, the computation delay and the bench's amplifier and gauge
+   filters, as ``nanosim design`` analyses it
    (:func:`nanosim.pipeline.design.write_robustness`).
 
 The scorecard (:mod:`nanosim.pipeline.scorecard`) then gives mean, spread and worst case
@@ -183,12 +184,12 @@ def check_only(only) -> list:
 
 def _robustness(spec: ControllerSpec, out: Path, Gd, twin_sysd) -> dict | None:
     from nanosim.design.robustness import LoopPlant
-    from nanosim.pipeline.design import write_robustness
+    from nanosim.pipeline.design import twin_loop_plant, write_robustness
     if not spec.is_lti:
         return None
     plants = {"identified": LoopPlant.identified(Gd)}
     if twin_sysd is not None:
-        plants["twin"] = LoopPlant.twin(twin_sysd)
+        plants["twin"] = twin_loop_plant(twin_sysd)
     return write_robustness(out, spec.config, plants)
 
 

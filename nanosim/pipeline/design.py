@@ -66,7 +66,7 @@ from nanosim.plots.design import (
 from nanosim.plant.stage import StageConfig
 from nanosim.plots.robustness import plot_disk_margins, plot_loop_singular_values
 
-__all__ = ["run_design", "write_robustness", "model_loop_delay_samples", "DELAY_PADE_ORDER"]
+__all__ = ["run_design", "write_robustness", "twin_loop_plant", "model_loop_delay_samples", "DELAY_PADE_ORDER"]
 
 # Order of the Pade approximant of the loop's computation delay in the design model (per input):
 # exp(-s T) at T = 250 us to 0.2 deg at 500 Hz.
@@ -161,6 +161,16 @@ def _twin_as_run(G_twin, electronics, dt: float):
         num, den = butterworth_lowpass(electronics.gauge_bandwidth_Hz, electronics.gauge_filter_order)
         G = ct.series(G, ct.append(*[ct.ss(ct.tf(num, den))] * G.noutputs))
     return ct.ss(G.A, G.B, G.C, G.D)
+
+
+def twin_loop_plant(twin_sysd) -> LoopPlant:
+    """The linear twin as the bench's loop runs it, for ``nanosim design`` and ``nanosim compare``.
+
+    ``twin_sysd``: the zero-order-hold twin (``twin.npz`` path or discrete StateSpace). The loop's
+    one-sample delay, and the bench electronics of ``StageConfig()`` (the stage every experiment runs):
+    its computation delay and the amplifier and gauge filters (:meth:`LoopPlant.twin`).
+    """
+    return LoopPlant.twin(twin_sysd, StageConfig().electronics)
 
 
 def _with_input_delay(G, delay_s: float):
@@ -459,7 +469,7 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
     plants = {}
     if G_twin is not None:
         twin_d = load_state_space_npz(twin)[1] if isinstance(twin, (str, os.PathLike)) else None
-        plants["twin"] = LoopPlant.twin(twin_d if twin_d is not None else ct.c2d(G_twin, dt, "zoh"), bench)
+        plants["twin"] = twin_loop_plant(twin_d if twin_d is not None else ct.c2d(G_twin, dt, "zoh"))
     # the identified discrete model is in the record-row convention; a ZOH discretization is not
     plants["identified"] = (LoopPlant.identified(Gd, delay_samples=loop_delay) if Gd is Gd_full
                             else LoopPlant.twin(Gd, label="full model"))

@@ -101,7 +101,7 @@ METRICS: tuple[Metric, ...] = (
     Metric("multiloop_disk_margin", "multiloop disk margin alpha (identified model = the loop as run)", "", True,
            DISK_MARGIN_TARGET, per_seed=False),
     Metric("disk_margin_input_output", "disk margin alpha, inputs and outputs at once", "", True, per_seed=False),
-    Metric("multiloop_disk_margin_twin", "multiloop disk margin alpha (linear twin, 1-sample delay)", "", True,
+    Metric("multiloop_disk_margin_twin", "multiloop disk margin alpha (linear twin, as the loop runs it)", "", True,
            per_seed=False),
     Metric("mu_peak", "mu upper bound over the uncertainty set", "", False, 1.0, strict=True, per_seed=False),
     Metric("peak_So", "peak sigma(S_o), identified model", "", False, per_seed=False),
@@ -379,7 +379,8 @@ def _markdown(doc: dict) -> str:
              f"identified model: {doc['model'] or 'n/a'}.\n",
              "Cells: mean ± standard deviation over the seeds (worst case); ✓/✗: the issue's acceptance on the "
              "worst case. Robustness rows are per design (the identified model, which is the loop as run, and the "
-             "linear twin with the loop's one-sample delay; mu over the stage's uncertainty set).\n",
+             "linear twin with the loop's delays and the bench's amplifier and gauge filters; mu over the stage's "
+             "uncertainty set).\n",
              markdown_table(doc), "",
              f"**Default rule.** {doc['default_rule']}", "",
              f"**Default:** `{doc['default']}` -- {doc['default_reason']}.", "", "## Designs", ""]
