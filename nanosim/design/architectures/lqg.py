@@ -98,24 +98,25 @@ move (1.14-1.24 of nominal at 33-100 V, above the set's top). The former rule's 
 
 The gain-range rule (session 16; ``gain_range_margin=True``, the bench's ``lqg-gain-range``, ``nanosim pipeline
 --architecture lqg-gain-range``). The robust rule asks its disk margin on the identified model, the low end of the
-piezo's gain range. At the top (1.36 x, a monotone move's slope and the linear twin's) its design keeps 0.29-0.33
+piezo's gain range. At the top (1.36 x, a monotone move's slope and the linear twin's) its design keeps about 0.33
 (``parameters["predicted_disk_margin_top_of_gain_range"]``, recorded by every design; on the twin in
-``robustness.json``, mean / worst over seeds 0-4: 0.310 / 0.290, mixed mu 0.947 / 1.021). No member designed at
+``robustness.json``, mean / worst over seeds 0-4: 0.302 / 0.296, mixed mu 0.970 / 0.993). No member designed at
 the centre or the upper quarter of the range holds 0.42 at the top (seed 0: 0.24-0.41), so this rule designs at
 1, 1.07 or 1.15 x the top (:data:`GAIN_RANGE_FRACTIONS`) and asks 0.42 at both ends. On MuJoCo (``nanosim
-pipeline --seeds 0-4 --architecture lqg-gain-range``; mean / worst, the robust rule's in brackets):
+pipeline --seeds 0-4 --architecture lqg-gain-range``, session 17's identification with the 1 kHz PRBS band;
+mean / worst, the robust rule's in brackets):
 
-* gained: mixed mu on the twin 0.795 / 0.849 (0.947 / 1.021), robustly stable on every seed; multiloop input disk
-  margin on the twin 0.394 / 0.341 (0.310 / 0.290), on the identified model 0.656 / 0.643 (0.607 / 0.590);
-* paid: S bandwidth 32.6 / 31.4 Hz (36.5 / 36.2), 2 um settling 15.6 / 17.75 ms (7.0 / 7.75), overshoot
-  2.5 / 2.7 % (1.0 / 1.2), table sigma 1.92 / 2.03 nm (1.86 / 1.90), contour at 1000 um/s 42.7 / 48.2 nm
-  (41.3 / 44.9). The step's tail is the disturbance observer's pole, which the reference path cancels only at the
+* gained: mixed mu on the twin 0.792 / 0.805 (0.970 / 0.993); multiloop input disk margin on the twin
+  0.441 / 0.412 (0.302 / 0.296), on the identified model 0.666 / 0.657 (0.599 / 0.595);
+* paid: S bandwidth 31.9 / 31.5 Hz (36.5 / 36.4), 2 um settling 16.4 / 17.75 ms (7.1 / 8.0), overshoot
+  2.6 / 2.7 % (0.9 / 1.0), table sigma 1.87 / 1.91 nm (1.85 / 1.88), contour at 1000 um/s 42.9 / 43.9 nm
+  (40.2 / 41.2). The step's tail is the disturbance observer's pole, which the reference path cancels only at the
   design gain (above): designed at the top, the step runs below it.
 
-On seeds 0 and 4 the twin's margin is then set at 724 Hz, by the 738 Hz mode that the identified model does not
-hold (the identification's PRBS has little power there; at 740 Hz the twin's response is 1.5-8 x the model's on
-the diagonal), so no design on the identified model can see it. The exported default stays the robust rule: it
-meets the paper's step and bandwidth figures, and its twin mu is above 1 by 2 % at worst.
+Identified with the paper's 50-200 Hz bands alone (session 16), the model had no 738 Hz mode and this rule's twin
+margin on seeds 0 and 4 was set at 724 Hz by it (0.347, 0.341; at 740 Hz the twin's response was 1.5-8 x the
+model's on the diagonal). With the 1 kHz band every seed's limit is at 419-424 Hz. The exported default stays
+the robust rule: it meets the paper's step and bandwidth figures, and its twin mu is below 1 on every seed.
 
 The delay: ``nanosim identify`` pairs each command with the reading the controller had when it
 computed it, so the identified model is the loop as run (``delay_samples = 0``,
