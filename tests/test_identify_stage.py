@@ -57,3 +57,29 @@ def test_assembled_model_is_block_diagonal_of_columns(ideal_result):
     for j, col in enumerate(ideal_result.columns):
         Hj = col.C @ np.linalg.solve(z * np.eye(col.order) - col.A, col.B) + col.D
         assert_allclose(G(z)[:, j], Hj[:, 0], rtol=1e-9)
+
+
+def test_the_default_bands_put_power_at_the_740_hz_mode():
+    """A PRBS held P samples has the spectrum sinc^2(f P / fs): at 740 Hz the paper's 200 Hz band (P = 10) is
+    22.1 dB under its low-frequency level, next to its 800 Hz null; the 1 kHz band (P = 2) 2.05 dB. Welch, 1.5 dB."""
+    import scipy.signal as ss
+
+    from nanosim.constants import CONTROL_RATE_HZ as fs
+    from nanosim.constants import DEFAULT_PRBS_BANDS_HZ
+    assert DEFAULT_PRBS_BANDS_HZ[:3] == (50.0, 100.0, 200.0) and max(DEFAULT_PRBS_BANDS_HZ) == 1000.0
+    for band_hz, hold, expect_db in ((200.0, 10, -22.15), (1000.0, 2, -2.05)):
+        assert ident.prbs_hold_samples(band_hz, fs=fs) == hold
+        assert 10 * np.log10(np.sinc(740.0 * hold / fs) ** 2) == pytest.approx(expect_db, abs=0.05)
+        f, p = ss.welch(ident.prbs(2**17, band_hz, fs=fs, seed=1), fs=fs, nperseg=1024)
+        low = p[(f > 5) & (f < 40)].mean()
+        at = p[np.argmin(np.abs(f - 740.0))]
+        assert 10 * np.log10(at / low) == pytest.approx(expect_db, abs=1.5), band_hz
+
+
+def test_identify_config_names_bad_bands():
+    from nanosim.paper import PAPER_PRBS_BANDS_HZ
+    from nanosim.pipeline.config import IdentifyConfig
+    assert IdentifyConfig(bands_hz=PAPER_PRBS_BANDS_HZ).bands_hz == (50.0, 100.0, 200.0)
+    for bad in ((), (50.0, 2500.0), [50.0], (0.0,), (True,), ("50",)):
+        with pytest.raises(ValueError, match=r"bands_hz: expected a non-empty tuple of band edges in \(0, 2000\] Hz"):
+            IdentifyConfig(bands_hz=bad)
