@@ -216,12 +216,17 @@ def _say(msg: str) -> None:
     print(f"  {msg}", file=sys.stderr, flush=True)
 
 
+def _bands_hz(args) -> tuple:
+    """The identification's PRBS bands: the paper's with ``--paper-bands``, else the default."""
+    return PAPER_PRBS_BANDS_HZ if args.paper_bands else C.DEFAULT_PRBS_BANDS_HZ
+
+
 def _cmd_identify(args) -> int:
     from nanosim.pipeline.run import step_identify
     from nanosim.pipeline.runfolder import staged_run
 
     cfg = IdentifyConfig(seed=args.seed, order=args.order, ideal=args.ideal, shared_poles=args.shared_poles,
-                         bands_hz=PAPER_PRBS_BANDS_HZ if args.paper_bands else C.DEFAULT_PRBS_BANDS_HZ)
+                         bands_hz=_bands_hz(args))
     _check_mjcf(args)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
@@ -268,8 +273,8 @@ def _cmd_pipeline(args) -> int:
     from nanosim.pipeline.run import run_pipeline
     from nanosim.pipeline.runfolder import staged_run
 
-    cfg = PipelineConfig(seed=args.seed, mjcf=args.mjcf, identify=IdentifyConfig(seed=args.seed),
-                         design=_design_config(args))
+    cfg = PipelineConfig(seed=args.seed, mjcf=args.mjcf,
+                         identify=IdentifyConfig(seed=args.seed, bands_hz=_bands_hz(args)), design=_design_config(args))
     _check_mjcf(args)
     t0 = time.perf_counter()
     if args.seeds is not None:                  # several seeds, batched (nanosim.pipeline.seeds); parsed by its type
@@ -467,6 +472,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"several seeds (a range or a list, at most {MAX_SEEDS}), batched; one folder per seed and a "
                          "summary report")
     pl.add_argument("--mjcf", default=None, type=_file)
+    pl.add_argument("--paper-bands", action="store_true",
+                    help="identify with the paper's 50/100/200 Hz PRBS bands only (default: also a 1 kHz band)")
     _add_design_arguments(pl)
     pl.set_defaults(func=_cmd_pipeline)
     r = sub.add_parser("report", help="verify a run folder against its manifest and rewrite its report")

@@ -273,3 +273,19 @@ def test_a_failed_command_leaves_no_parent_folders(tmp_path):
     with staged_run(tmp_path / "deep" / "run") as stage:
         (stage / "f.txt").write_text("x")
     assert (tmp_path / "deep" / "run" / "f.txt").is_file()
+
+
+@pytest.mark.parametrize("flag, bands", [([], (50.0, 100.0, 200.0, 1000.0)), (["--paper-bands"], (50.0, 100.0, 200.0))])
+def test_paper_bands_reach_the_pipelines_identification(monkeypatch, tmp_path, flag, bands):
+    import nanosim.pipeline.run as run
+    from nanosim.cli import main
+    seen = []
+
+    def fake(stage, cfg):
+        seen.append(cfg)
+        raise RuntimeError("stop before any work")
+    monkeypatch.setattr(run, "run_pipeline", fake)
+    with pytest.raises(RuntimeError, match="stop before any work"):
+        main(["pipeline", "--out", str(tmp_path / "run"), *flag])
+    assert seen[0].identify.bands_hz == bands
+    assert not (tmp_path / "run").exists()                  # the staged folder is removed: nothing half-written
