@@ -248,7 +248,7 @@ def test_controller_files_load_from_npz_and_mat_and_errors_name_the_problem(tmp_
         load_controller(f"{_readme_pid(tmp_path)}:nope")
 
 
-def test_readme_pid_and_a_bench_design_run_through_nanosim_compare(tmp_path):
+def test_readme_pid_and_a_bench_design_run_through_nanosim_compare(tmp_path, twin):
     """The README's ten-line PID (module:function) beside a bench design: twin, one seed, the bandwidth
     experiment; scorecard.json has both controllers and every metric."""
     from nanosim.cli import main
@@ -282,9 +282,7 @@ def test_readme_pid_and_a_bench_design_run_through_nanosim_compare(tmp_path):
     # (alpha 0 either way), so peak sigma(S_o) tells the two apart: 163 as run, 30 without the filters.
     from nanosim.design.robustness import LoopPlant
     from nanosim.pipeline.design import twin_loop_plant, write_robustness
-    from nanosim.plant.linearize import linearize
-    from nanosim.plant.stage import Stage, StageConfig
-    twin_sysd = linearize(Stage(config=StageConfig.ideal())).sysd_V
+    twin_sysd = twin.sysd_V
     as_run, bare = (write_robustness(tmp_path / name, out / "paper" / "controller.npz", {"twin": plant}, mu=False,
                                      figures=False)["plants"]["twin"]["peak_So"]
                     for name, plant in (("run", twin_loop_plant(twin_sysd)), ("bare", LoopPlant.twin(twin_sysd))))
