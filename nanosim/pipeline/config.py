@@ -9,8 +9,8 @@ import math
 import os
 from dataclasses import dataclass, field, replace
 
-from nanosim.constants import (DEFAULT_DAMPING_LOWPASS_HZ, DEFAULT_DAMPING_ZETA, DEFAULT_PRBS_BANDS_HZ,
-                               DEFAULT_REDUCED_ORDER)
+from nanosim.constants import (CONTROL_RATE_HZ, DEFAULT_DAMPING_LOWPASS_HZ, DEFAULT_DAMPING_ZETA,
+                               DEFAULT_PRBS_BANDS_HZ, DEFAULT_REDUCED_ORDER)
 from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_REDUCED_ORDER
 
 __all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConfig", "MonteCarloConfig",
@@ -67,11 +67,12 @@ class IdentifyConfig:
                                        or not 0 <= self.order <= 60):
             raise ValueError(f"order: expected an integer in [0, 60] (0: choose from singular values), "
                              f"got {self.order!r}")
-        bands = self.bands_hz
+        bands, nyquist_hz = self.bands_hz, CONTROL_RATE_HZ / 2
         if (not isinstance(bands, tuple) or not bands
-                or not all(isinstance(b, (int, float)) and not isinstance(b, bool) and 0 < b <= 2000 for b in bands)):
-            raise ValueError(f"bands_hz: expected a non-empty tuple of band edges in (0, 2000] Hz (half the 4 kHz "
-                             f"sampling rate), got {bands!r}")
+                or not all(isinstance(b, (int, float)) and not isinstance(b, bool) and 0 < b <= nyquist_hz
+                           for b in bands)):
+            raise ValueError(f"bands_hz: expected a non-empty tuple of band edges in (0, {nyquist_hz:g}] Hz (half "
+                             f"the {CONTROL_RATE_HZ:g} Hz sampling rate), got {bands!r}")
 
 
 @dataclass(frozen=True)
