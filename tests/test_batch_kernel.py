@@ -73,6 +73,22 @@ def test_flicker_cascade_is_flicker_shaper():
     assert np.array_equal(got, ref.run(e))
 
 
+
+def test_member_products_are_the_numpy_paths():
+    # every remainder of the kernel's four-term passes (k = 1 ... 9), on values whose sums round differently
+    # when regrouped: equal bits, and within one rounding per term of the exact sums
+    from nanosim.plant.batch import member_products
+    rng = np.random.default_rng(2)
+    for k in range(1, 10):
+        PS = rng.standard_normal((5, k, 37)) * np.exp(6 * rng.standard_normal((5, k, 37)))
+        xv = rng.standard_normal((37, k))
+        out = np.empty((5, 37))
+        batch_kernel.member_products(PS, np.ascontiguousarray(xv.T), out)
+        assert np.array_equal(out.T, member_products(PS, xv)), k
+        exact = np.einsum("ikb,bk->bi", PS.astype(np.longdouble), xv.astype(np.longdouble))
+        bound = 2 * k * np.finfo(float).eps * np.einsum("ikb,bk->bi", np.abs(PS), np.abs(xv))
+        assert np.all(np.abs(out.T - exact) <= bound), k
+
 @pytest.mark.parametrize("exact", [True, False])
 @pytest.mark.parametrize("two_dof", [False, True])
 def test_compiled_closed_loop_equals_numpy_path(plants, exact, two_dof):
