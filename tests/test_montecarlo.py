@@ -9,7 +9,7 @@ from nanosim.pipeline import mc_stats
 from nanosim.pipeline.config import MonteCarloConfig
 from nanosim.pipeline.montecarlo import run_montecarlo
 from nanosim.pipeline.runfolder import RunFolderError, verify_manifest
-from nanosim.pipeline.sweep import parse_param, pareto_front, point_model
+from nanosim.pipeline.sweep import PARETO_TIES, parse_param, pareto_front, point_model
 from nanosim.plant.mjcf import load_model
 from nanosim.plant.modes import modal_analysis
 from nanosim.plant.tolerances import default_tolerances, notch_stiffness_ratio, sample_model
@@ -130,7 +130,17 @@ def test_pareto_front_and_sweep_parameters():
            {"bandwidth_S_hz": 25, "travel_um": 70, "resolution_nm": 2.5},       # dominated by 0
            {"bandwidth_S_hz": 20, "travel_um": 120, "resolution_nm": 2.0},
            {"bandwidth_S_hz": 35, "travel_um": 60, "resolution_nm": math.nan}]
-    assert pareto_front(pts) == [0, 2]
+    assert pareto_front(pts) == [0, 2] == pareto_front(pts, ties={})
+    # ties: a point behind another by less than the tolerance in every objective stays on the front
+    near = [{"bandwidth_S_hz": 30.0, "travel_um": 80.0, "resolution_nm": 2.00},
+            {"bandwidth_S_hz": 29.8, "travel_um": 79.95, "resolution_nm": 2.03},    # 0.7 %, 0.06 %, 1.5 % behind 0
+            {"bandwidth_S_hz": 29.0, "travel_um": 80.0, "resolution_nm": 2.00},     # 3.3 % behind 0 in bandwidth
+            {"bandwidth_S_hz": 30.0, "travel_um": 80.0, "resolution_nm": 2.10}]     # 4.8 % behind 0 in sigma
+    tol = {"bandwidth_S_hz": 0.01, "resolution_nm": 0.02, "travel_um": 1e-3}
+    assert pareto_front(near, ties={}) == [0]
+    assert pareto_front(near, ties=tol) == [0, 1]
+    assert pareto_front(near, ties=dict(tol, resolution_nm=0.05)) == [0, 1, 3]
+    assert all(PARETO_TIES[k] > 0 for k in ("bandwidth_S_hz", "resolution_nm", "travel_um"))
     assert parse_param("thickness.swing=150:210:3") == ("thickness.swing", 150.0, 210.0, 3)
     assert parse_param("thickness.fourbar2=60:80:2")[0] == "thickness.fb2"
     assert parse_param("length_mm.leg_length=16:24:3")[0] == "length_mm.leg_length"

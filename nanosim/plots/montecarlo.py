@@ -113,6 +113,7 @@ def fig_pareto(points: list, front: list, x: str, y: str, c: str, labels: dict |
                     textcoords="offset points")
     ax.set_xlabel(labels.get(x, x))
     ax.set_ylabel(labels.get(y, y))
+    ax.ticklabel_format(useOffset=False)      # the values themselves, however close (no "+7.4e1" offset)
     ax.grid(alpha=0.3)
-    ax.set_title("Design sweep: bandwidth vs travel vs resolution (red: Pareto-optimal)")
+    ax.set_title("Design sweep: bandwidth vs travel vs resolution (red: Pareto-optimal, ties counted)")
     return fig
