@@ -73,7 +73,6 @@ def test_flicker_cascade_is_flicker_shaper():
     assert np.array_equal(got, ref.run(e))
 
 
-
 def test_member_products_are_the_numpy_paths():
     # every remainder of the kernel's four-term passes (k = 1 ... 9), on values whose sums round differently
     # when regrouped: equal bits, and within one rounding per term of the exact sums
@@ -88,6 +87,7 @@ def test_member_products_are_the_numpy_paths():
         exact = np.einsum("ikb,bk->bi", PS.astype(np.longdouble), xv.astype(np.longdouble))
         bound = 2 * k * np.finfo(float).eps * np.einsum("ikb,bk->bi", np.abs(PS), np.abs(xv))
         assert np.all(np.abs(out.T - exact) <= bound), k
+
 
 @pytest.mark.parametrize("exact", [True, False])
 @pytest.mark.parametrize("two_dof", [False, True])
