@@ -12,7 +12,7 @@ from nanosim.design.controller import ControllerConfig, DiscreteController
 from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
 from nanosim.experiments.loop import run_closed_loop
 from nanosim.plant import batch_kernel
-from nanosim.plant.batch import BatchTwinStage
+from nanosim.plant.batch import BatchTwinStage, member_products
 from nanosim.plant.filters import FlickerShaper
 from nanosim.plant.floor import floor_model
 from nanosim.plant.linearize import linearize
@@ -76,7 +76,6 @@ def test_flicker_cascade_is_flicker_shaper():
 def test_member_products_are_the_numpy_paths():
     # every remainder of the kernel's four-term passes (k = 1 ... 9), on values whose sums round differently
     # when regrouped: equal bits, and within one rounding per term of the exact sums
-    from nanosim.plant.batch import member_products
     rng = np.random.default_rng(2)
     for k in range(1, 10):
         PS = rng.standard_normal((5, k, 37)) * np.exp(6 * rng.standard_normal((5, k, 37)))

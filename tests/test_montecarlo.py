@@ -141,6 +141,11 @@ def test_pareto_front_and_sweep_parameters():
     assert pareto_front(near, ties=tol) == [0, 1]
     assert pareto_front(near, ties=dict(tol, resolution_nm=0.05)) == [0, 1, 3]
     assert all(PARETO_TIES[k] > 0 for k in ("bandwidth_S_hz", "resolution_nm", "travel_um"))
+    # dominance with ties is not transitive: p < q < r < p (each ahead by > 10 % in one objective, behind by <= 10 %
+    # in the others) leaves no point undominated, and the front falls back to the strict one (all three)
+    cyc = [dict(zip("abc", v)) for v in ((1.0, 1.0, 1.0), (1.15, 0.95, 0.95), (1.08, 1.1, 0.89))]
+    assert pareto_front(cyc, up=("a", "b", "c"), down=(), ties={k: 0.1 for k in "abc"}) == [0, 1, 2]
+    assert pareto_front(cyc[:2], up=("a", "b", "c"), down=(), ties={k: 0.1 for k in "abc"}) == [1]
     assert parse_param("thickness.swing=150:210:3") == ("thickness.swing", 150.0, 210.0, 3)
     assert parse_param("thickness.fourbar2=60:80:2")[0] == "thickness.fb2"
     assert parse_param("length_mm.leg_length=16:24:3")[0] == "length_mm.leg_length"
