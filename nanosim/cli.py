@@ -349,7 +349,8 @@ def _cmd_montecarlo(args) -> int:
     tol = f"{100 * CROSSCHECK_REL_TOL:g} %"
     print(f"montecarlo done in {s['wall_seconds']:.1f} s: yield {y['pass']}/{y['n']} ({y['yield_percent']:.1f} %), "
           f"MuJoCo cross-check {s['crosscheck_pass']}/{s['crosscheck_n']} within {tol} or the reading resolution "
-          f"({s.get('crosscheck_pass_relative_only', 0)} within {tol} alone); "
+          f"of the twin's spread ({s.get('crosscheck_pass_without_spread', 0)} without the spread, "
+          f"{s.get('crosscheck_pass_relative_only', 0)} within {tol} alone); "
           f"report: {Path(args.out) / A.REPORT_MD}")
     return 0
 

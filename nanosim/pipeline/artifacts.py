@@ -27,9 +27,9 @@ __all__ = ["Artifact", "FIGURES", "figure", "MODES_JSON", "MODES_DIR", "MODEL_NP
            "FIG20_CONTOURING", "COMPARE_LOOPS_PNG", "COMPARE_STEP_PNG", "COMPARE_CONTOUR_PNG", "COMPARE_PSD_PNG",
            "compare_seed_dir", "pipeline_seed_dir", "SEEDS_JSON", "PAPER_DESIGN_SEEDS_JSON", "ABLATION_JSON",
            "ABLATION_MD", "ABLATION_PARTIAL_JSON", "MONTECARLO_JSON", "TOLERANCES_JSON", "SPEC_JSON", "SUMMARY_JSON",
-           "MC_SAMPLES_DIR", "MC_CROSSCHECK_DIR", "mc_sample_json", "FIG_MC_HISTOGRAMS", "FIG_MC_SENSITIVITY",
-           "FIG_MC_CROSSCHECK", "SWEEP_JSON", "SWEEP_POINTS_DIR", "sweep_point_json", "FIG_SWEEP_PARETO",
-           "TIMINGS_JSON"]
+           "MC_SAMPLES_DIR", "MC_CROSSCHECK_DIR", "MC_SPREAD_DIR", "mc_sample_json", "FIG_MC_HISTOGRAMS",
+           "FIG_MC_SENSITIVITY", "FIG_MC_CROSSCHECK", "SWEEP_JSON", "SWEEP_POINTS_DIR", "sweep_point_json",
+           "FIG_SWEEP_PARETO", "TIMINGS_JSON"]
 
 
 @dataclass(frozen=True)
@@ -99,6 +99,7 @@ SPEC_JSON = "spec.json"
 SUMMARY_JSON = "summary.json"
 MC_SAMPLES_DIR = "samples"
 MC_CROSSCHECK_DIR = "crosscheck"
+MC_SPREAD_DIR = "crosscheck_spread"     # the twin's reading spread of each cross-checked sample
 FIG_MC_HISTOGRAMS = "fig_mc_histograms.png"
 FIG_MC_SENSITIVITY = "fig_mc_sensitivity.png"
 FIG_MC_CROSSCHECK = "fig_mc_crosscheck.png"
@@ -127,7 +128,7 @@ def pipeline_seed_dir(seed: int) -> str:
 
 
 def mc_sample_json(index: int) -> str:
-    """One Monte Carlo sample's record in :data:`MC_SAMPLES_DIR` or :data:`MC_CROSSCHECK_DIR`."""
+    """One Monte Carlo sample's record in :data:`MC_SAMPLES_DIR`, :data:`MC_CROSSCHECK_DIR` or :data:`MC_SPREAD_DIR`."""
     return f"sample_{index:05d}.json"
 
 

@@ -84,12 +84,19 @@ def fig_crosscheck(cross: list, tol_percent: float):
     for k, c in enumerate(cross):
         y = np.array([metrics.index(m) + 0.6 * (k / max(1, len(cross) - 1) - 0.5) for m in c["metrics"]])
         x = np.array([100 * (r["twin"] - r["mujoco"]) / max(abs(r["mujoco"]), 1e-12) for r in c["metrics"].values()])
-        # open marker: within the metric's reading resolution (two ADC counts or two periods), whatever the %
-        res = np.array([r.get("within_resolution", False) for r in c["metrics"].values()], bool)
-        line, = ax.plot(x[~res], y[~res], "o", ms=3, label=f"#{c['sample']}")
+        # open marker: within the metric's reading resolution (two ADC counts or two periods), whatever the %;
+        # square: only within the resolution of the twin's reading range at indistinguishable physics
+        rows = list(c["metrics"].values())
+        res = np.array([r.get("within_resolution", False) for r in rows], bool)
+        spr = np.array([r.get("within_spread", False) and not (r["within_resolution"] or r["ok_relative"])
+                        for r in rows], bool)
+        plain = ~res & ~spr
+        line, = ax.plot(x[plain], y[plain], "o", ms=3, label=f"#{c['sample']}")
         ax.plot(x[res], y[res], "o", ms=4, mfc="none", color=line.get_color())
+        ax.plot(x[spr], y[spr], "s", ms=5, mfc="none", color=line.get_color())
     ax.axvspan(-tol_percent, tol_percent, color="tab:green", alpha=0.12, label=f"within {tol_percent:g} %")
     ax.plot([], [], "o", ms=4, mfc="none", color="0.4", label="within the reading resolution")
+    ax.plot([], [], "s", ms=5, mfc="none", color="0.4", label="within the resolution of the twin's spread")
     ax.set_yticks(range(len(metrics)), metrics, fontsize=8)
     ax.set_xlabel("(twin - MuJoCo) / MuJoCo [%]")
     ax.grid(alpha=0.3)
