@@ -333,6 +333,20 @@ def test_crosscheck_agrees_within_the_resolution_of_the_twins_spread():
                                            spread=mc_stats.reading_spread(flats))["all_ok"]
 
 
+def test_crosscheck_bias_is_the_mean_difference_from_the_twins_spread_centre():
+    m = "step_2um.overshoot_percent"
+    spreads = [{m: {"min": 0.5, "max": 0.7, "mean": 0.6, "std": 0.05, "n": 17}},
+               {m: {"min": 0.9, "max": 1.1, "mean": 1.0, "std": 0.05, "n": 17}}, None]
+    pairs = [(0.55, 0.65), (1.05, 0.98), (0.4, 0.44)]          # (twin, MuJoCo); the third sample has no spread
+    cross = [mc_stats.compare_crosscheck({m: a}, {m: b}, spread=sp) for (a, b), sp in zip(pairs, spreads)]
+    b = mc_stats.crosscheck_bias(cross)[m]
+    d = np.array([0.65 - 0.6, 0.98 - 1.0, 0.44 - 0.4])
+    assert b["n"] == 3 and b["mean_diff"] == pytest.approx(d.mean(), rel=1e-12)
+    assert b["std_err"] == pytest.approx(d.std(ddof=1) / np.sqrt(3), rel=1e-12)
+    assert b["mean_diff_percent"] == pytest.approx(100 * np.mean(d / np.array([0.6, 1.0, 0.4])), rel=1e-12)
+    assert math.isnan(mc_stats.crosscheck_bias(cross[:1])[m]["std_err"])
+
+
 def test_quantizers_make_the_loop_path_sensitive_to_a_ppm_gain_change():
     # why the cross-check needs the twin's spread: 17 twins of one stage whose input gains differ by 0-8 ppm, in a
     # loop with the LQG of the identified seed-0 model, a 2 um step. With the DAC and ADC quantizers (noise on or

@@ -19,7 +19,8 @@ from nanosim.paper import BANDS, PAPER_CONTOUR_SPEED_UM_S, PAPER_STEP_UM
 __all__ = ["flatten_metrics", "unit_of", "default_spec", "load_spec", "check_spec", "evaluate_spec", "yield_table",
            "worst_cases", "sensitivity", "compare_crosscheck", "CROSSCHECK_METRICS", "CROSSCHECK_RESOLUTION",
            "CROSSCHECK_REL_TOL", "READING_QUANTA_PER_METRIC", "CONTOUR_MEAN_METRIC", "wilson_interval",
-           "SPREAD_MEMBERS_PER_SIDE", "SPREAD_GAIN_STEP", "spread_gain_factors", "reading_spread"]
+           "SPREAD_MEMBERS_PER_SIDE", "SPREAD_GAIN_STEP", "spread_gain_factors", "reading_spread",
+           "crosscheck_bias"]
 
 _UNITS = (("_hz", "Hz"), ("_nm", "nm"), ("_um", "um"), ("_ms", "ms"), ("_percent", "%"), ("_deg", "deg"),
           ("_s", "s"), ("_db", "dB"), ("_um_per_V", "um/V"))
@@ -325,7 +326,7 @@ def sensitivity(X: np.ndarray, names: list[str], groups: list[str], flats: list[
 def compare_crosscheck(twin: dict, mujoco: dict, metrics=CROSSCHECK_METRICS, rel_tol: float = CROSSCHECK_REL_TOL,
                        resolution: dict | None = None, spread: dict | None = None) -> dict:
     """Twin vs MuJoCo for one sample: ``{metric: {twin, mujoco, rel_diff, abs_diff, resolution, within_resolution,
-    ok, ok_relative}}`` (with ``spread``, also ``twin_min, twin_max, spread_gap, within_spread``),
+    ok, ok_relative}}`` (with ``spread``, also ``twin_min, twin_max, twin_mean, spread_gap, within_spread``),
     ``all_ok`` and ``all_ok_relative``.
 
     Compares ``metrics`` (default: the pipeline report's MuJoCo-vs-twin quantities) where both
@@ -351,8 +352,41 @@ def compare_crosscheck(twin: dict, mujoco: dict, metrics=CROSSCHECK_METRICS, rel
         if spread is not None and m in spread:
             lo, hi = float(spread[m]["min"]), float(spread[m]["max"])
             gap = max(lo - b, b - hi, 0.0)
-            row.update(twin_min=lo, twin_max=hi, spread_gap=gap, within_spread=gap <= q * (1 + 1e-9))
+            row.update(twin_min=lo, twin_max=hi, twin_mean=float(spread[m]["mean"]), spread_gap=gap,
+                       within_spread=gap <= q * (1 + 1e-9))
             row["ok"] = row["ok"] or row["within_spread"]
         rows[m] = row
     return {"metrics": rows, "all_ok": all(r["ok"] for r in rows.values()) if rows else False,
             "all_ok_relative": all(r["ok_relative"] for r in rows.values()) if rows else False}
+
+
+def crosscheck_bias(cross: Sequence[dict]) -> dict:
+    """The systematic MuJoCo-minus-twin difference of each metric over the cross-checked samples.
+
+    Per sample the difference is taken from the mean of the twin's spread (``twin_mean``, the twin's own
+    reading without a spread), so the reading spread of one sample averages out over the samples.
+
+    Parameters
+    ----------
+    cross : sequence of dict
+        :func:`compare_crosscheck` results, one per sample.
+
+    Returns
+    -------
+    dict
+        ``{metric: {n, mean_diff, std_err, mean_diff_percent}}``: the mean difference in the metric's unit, its
+        standard error (NaN for one sample) and the mean of the per-sample differences relative to the twin, %.
+    """
+    diffs: dict = {}
+    for c in cross:
+        for m, r in c["metrics"].items():
+            centre = float(r.get("twin_mean", r["twin"]))
+            diffs.setdefault(m, []).append((float(r["mujoco"]) - centre, centre))
+    out = {}
+    for m, rows in diffs.items():
+        d = np.array([x for x, _ in rows])
+        rel = np.array([x / abs(c) for x, c in rows if c != 0.0])
+        out[m] = {"n": int(d.size), "mean_diff": float(d.mean()),
+                  "std_err": float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan,
+                  "mean_diff_percent": float(100 * rel.mean()) if rel.size else math.nan}
+    return out

@@ -421,6 +421,7 @@ def summarize(out: Path, settings: MonteCarloConfig, spec: dict, names, tm) -> d
                "crosscheck_pass_without_spread": sum(
                    all(r["rel_diff"] <= mc_stats.CROSSCHECK_REL_TOL or r["within_resolution"]
                        for r in c["metrics"].values()) and bool(c["metrics"]) for c in cross),
+               "crosscheck_bias": mc_stats.crosscheck_bias(cross),
                "crosscheck_max_rel_diff": max((r["rel_diff"] for c in cross for r in c["metrics"].values()),
                                               default=None),
                "errors": errors}
@@ -493,6 +494,16 @@ def report_markdown(summary: dict) -> str:
                          if r.get("within_spread") and not (r["ok_relative"] or r["within_resolution"])]
             lines.append(f"| #{c['sample']} | {sum(r['ok'] for r in c['metrics'].values())}/{len(c['metrics'])} | "
                          f"{worst} | {', '.join(by_spread) or 'none'} |")
+        bias = summary.get("crosscheck_bias") or {}
+        if bias:
+            lines += ["", "Systematic difference over these samples: MuJoCo minus the mean of the twin's readings at "
+                      "indistinguishable physics, mean and standard error (a single sample's spread averages out, "
+                      "so a bias far below one sample's resolution shows here).", "",
+                      "| metric | mean difference | standard error | unit | mean difference, % of the twin's |",
+                      "|---|---|---|---|---|"]
+            for m, b in bias.items():
+                lines.append(f"| `{m}` | {b['mean_diff']:+.4g} | {_fmt(b['std_err'])} | {mc_stats.unit_of(m)} | "
+                             f"{b['mean_diff_percent']:+.3g} |")
     lines += ["", "## Figures", ""]
     for name, fig, present in (("histograms", A.FIG_MC_HISTOGRAMS, summary["n"] > 0),
                                ("sensitivity", A.FIG_MC_SENSITIVITY, bool(summary["sensitivity"])),
