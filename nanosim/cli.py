@@ -338,13 +338,25 @@ def _cmd_montecarlo(args) -> int:
     from nanosim.pipeline.mc_stats import CROSSCHECK_REL_TOL, load_spec
     from nanosim.pipeline.montecarlo import run_montecarlo
 
-    _check_controller(args.controller)          # validate before any work (--scheduler's form: its type)
+    for c in args.controller:
+        _check_controller(c)                    # validate before any work (--scheduler's form: its type)
+    if len(args.controller) > 1:
+        from nanosim.pipeline.mc_bench import controller_names
+        controller_names(args.controller)
     if args.spec:
         load_spec(args.spec)
     _check_mjcf(args)
     cfg = MonteCarloConfig(n=args.n, seed=args.seed, crosscheck=args.crosscheck, spec=args.spec,
                            scheduler=args.scheduler, workers=args.workers, mjcf=args.mjcf)
-    s = run_montecarlo(args.controller, args.out, cfg, say=_say)
+    if len(args.controller) > 1:
+        from nanosim.pipeline.mc_bench import run_montecarlo_bench
+        doc = run_montecarlo_bench(args.controller, args.out, cfg, say=_say)
+        best = max(doc["controllers"], key=lambda r: (r["yield_percent"], r["disk_margin_alpha"]["p5"]))
+        print(f"montecarlo of {len(doc['controllers'])} controllers done in {doc['wall_seconds']:.1f} s: "
+              + ", ".join(f"{r['controller']} {r['pass']}/{r['n']}" for r in doc["controllers"])
+              + f"; highest yield: {best['controller']}; report: {Path(args.out) / A.REPORT_MD}")
+        return 0
+    s = run_montecarlo(args.controller[0], args.out, cfg, say=_say)
     y = next(r for r in s["yield"] if r["metric"] == "all")
     tol = f"{100 * CROSSCHECK_REL_TOL:g} %"
     print(f"montecarlo done in {s['wall_seconds']:.1f} s: yield {y['pass']}/{y['n']} ({y['yield_percent']:.1f} %), "
@@ -490,10 +502,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="keep the controller designed on the all-on stage instead of redesigning per row")
     ab.add_argument("--mjcf", default=None, type=_file)
     ab.set_defaults(func=_cmd_ablation)
-    mc = sub.add_parser("montecarlo", help="one controller on a population of fabricated stages (tolerances)")
+    mc = sub.add_parser("montecarlo", help="controllers on a population of fabricated stages (tolerances)")
     mc.add_argument("--n", type=_int_at_least(1), default=mc_default.n,
                     help=f"number of fabricated stages (default {mc_default.n})")
-    mc.add_argument("--controller", required=True, type=_file, help="controller.npz from 'nanosim design'")
+    mc.add_argument("--controller", required=True, type=_file, nargs="+", metavar="FILE",
+                    help="controller.npz from 'nanosim design' (several: each on the same stages, "
+                         "compared; one sub-folder each, named by the file)")
     mc.add_argument("--out", required=True, type=out, help="run folder (a rerun resumes it)")
     mc.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
     mc.add_argument("--spec", default=None, type=_file, help="JSON spec (limits with units); default: paper bands")

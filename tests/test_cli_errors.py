@@ -175,6 +175,7 @@ BAD = [
     # 15: empty --out, parents of a failed --out, compare --only
     (("identify", "--out", ""), "--out", "got ''"),
     (("montecarlo", "--controller", "{ctrl}", "--out", ""), "--out"),
+    (("montecarlo", "--controller", "{ctrl}", "{ctrl}", "--out", NEW), "--controller", "share the name"),
     (("modes", "--plot", ""), "--plot"),
     (("identify", "--out", "{o}/deep/x/y", "--mjcf", "{bad_xml}"), "--mjcf"),
     (("compare", "--controllers", "paper", "--out", NEW, "--model", "{model}", "--only", "nosuch"), "--only"),

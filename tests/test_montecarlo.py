@@ -215,6 +215,61 @@ def test_montecarlo_writes_per_sample_resumes_and_seals(tmp_path, controller_npz
                                                              experiments=("small_steps",)), progress=False)
 
 
+def test_controller_names_are_stems_or_folder_stems():
+    from nanosim.pipeline.mc_bench import controller_names
+
+    got = controller_names(["/x/lqg.npz", "/x/paper.npz"])
+    assert list(got) == ["lqg", "paper"]
+    got = controller_names(["/runs/a/controller.npz", "/runs/b/controller.npz", "/runs/a/paper.npz"])
+    assert list(got) == ["a-controller", "b-controller", "paper"]
+    with pytest.raises(ValueError, match="share the name 'a-controller'"):
+        controller_names(["/runs/a/controller.npz", "/runs/a/controller.npz"])
+    with pytest.raises(ValueError, match="at least two"):
+        controller_names(["/x/lqg.npz"])
+
+
+def test_montecarlo_of_two_controllers_is_each_ones_own_run_and_compares_them(tmp_path, controller_npz):
+    from nanosim.fileio import write_npz
+    from nanosim.pipeline.mc_bench import run_montecarlo_bench
+
+    z = np.load(controller_npz)
+    slow = write_npz(tmp_path / "slow.npz", Akd=z["Akd"], Bkd=z["Bkd"], Ckd=0.5 * z["Ckd"], Dkd=0.5 * z["Dkd"],
+                     dt=z["dt"])
+    fast = tmp_path / "fast.npz"
+    fast.write_bytes(Path(controller_npz).read_bytes())
+    cfg = MonteCarloConfig(n=2, seed=4, crosscheck=0, workers=1, experiments=("small_steps",))
+    out = tmp_path / "cmp"
+    doc = run_montecarlo_bench([fast, slow], out, cfg, progress=False)
+    verify_manifest(out)
+    assert [r["controller"] for r in doc["controllers"]] == ["fast", "slow"]
+    # each sub-folder is that controller's own Monte Carlo, bit for bit
+    single = tmp_path / "single"
+    run_montecarlo(slow, single, cfg, progress=False)
+    assert _samples(single) == _samples(out / "slow")
+    for r in doc["controllers"]:
+        flats = [mc_stats.flatten_metrics(x["metrics"]) | {"disk_margin_alpha": x["disk_margin_alpha"]}
+                 for x in _samples(out / r["controller"]).values()]
+        alpha = np.array([f["disk_margin_alpha"] for f in flats])
+        assert r["n"] == 2 and r["disk_margin_alpha"]["worst"] == alpha.min()
+        assert r["disk_margin_alpha"]["median"] == pytest.approx(np.median(alpha), rel=1e-12)
+        s = json.loads((out / r["controller"] / "summary.json").read_text())
+        assert r["pass"] == next(y["pass"] for y in s["yield"] if y["metric"] == "all")
+    # half the loop gain: a different loop, a different margin
+    a = {r["controller"]: r["disk_margin_alpha"]["median"] for r in doc["controllers"]}
+    assert a["fast"] != a["slow"]
+    assert {"montecarlo_bench.json", "summary.json", "report.md", "fig_mc_bench.png", "manifest.json"} <= {
+        p.name for p in out.iterdir()}
+    assert "| `slow` |" in (out / "report.md").read_text()
+    # a rerun resumes (nothing to run) and seals again; another seed is refused
+    mtimes = {p: p.stat().st_mtime_ns for p in (out / "fast" / "samples").iterdir()}
+    run_montecarlo_bench([fast, slow], out, cfg, progress=False)
+    assert all(p.stat().st_mtime_ns == t for p, t in mtimes.items())
+    verify_manifest(out)
+    with pytest.raises(RunFolderError, match="another seed"):
+        run_montecarlo_bench([fast, slow], out, MonteCarloConfig(n=2, seed=5, crosscheck=0, workers=1,
+                                                                 experiments=("small_steps",)), progress=False)
+
+
 def _result_bytes(folder):
     """Every file of a run folder but the two that may differ between runs with the same seed."""
     from nanosim.pipeline.artifacts import MANIFEST_JSON, TIMINGS_JSON

@@ -28,8 +28,8 @@ __all__ = ["Artifact", "FIGURES", "figure", "MODES_JSON", "MODES_DIR", "MODEL_NP
            "compare_seed_dir", "pipeline_seed_dir", "SEEDS_JSON", "PAPER_DESIGN_SEEDS_JSON", "ABLATION_JSON",
            "ABLATION_MD", "ABLATION_PARTIAL_JSON", "MONTECARLO_JSON", "TOLERANCES_JSON", "SPEC_JSON", "SUMMARY_JSON",
            "MC_SAMPLES_DIR", "MC_CROSSCHECK_DIR", "MC_SPREAD_DIR", "mc_sample_json", "FIG_MC_HISTOGRAMS",
-           "FIG_MC_SENSITIVITY", "FIG_MC_CROSSCHECK", "SWEEP_JSON", "SWEEP_POINTS_DIR", "sweep_point_json",
-           "FIG_SWEEP_PARETO", "TIMINGS_JSON"]
+           "FIG_MC_SENSITIVITY", "FIG_MC_CROSSCHECK", "MC_BENCH_JSON", "FIG_MC_BENCH", "SWEEP_JSON",
+           "SWEEP_POINTS_DIR", "sweep_point_json", "FIG_SWEEP_PARETO", "TIMINGS_JSON"]
 
 
 @dataclass(frozen=True)
@@ -103,6 +103,9 @@ MC_SPREAD_DIR = "crosscheck_spread"     # the twin's reading spread of each cros
 FIG_MC_HISTOGRAMS = "fig_mc_histograms.png"
 FIG_MC_SENSITIVITY = "fig_mc_sensitivity.png"
 FIG_MC_CROSSCHECK = "fig_mc_crosscheck.png"
+# nanosim montecarlo with several controllers (nanosim.pipeline.mc_bench)
+MC_BENCH_JSON = "montecarlo_bench.json"     # the plan
+FIG_MC_BENCH = "fig_mc_bench.png"
 # nanosim sweep (nanosim.pipeline.sweep)
 SWEEP_JSON = "sweep.json"
 SWEEP_POINTS_DIR = "points"

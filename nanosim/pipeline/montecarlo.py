@@ -54,7 +54,8 @@ from nanosim.pipeline.runfolder import (MANIFEST_JSON, RunFolderError, check_wri
 from nanosim.pipeline.scaleout import check_scheduler, open_executor, run_tasks
 from nanosim.pipeline.timings import record_timings
 
-__all__ = ["run_montecarlo", "run_chunk", "sample_plants", "summarize", "report_markdown", "sample_units"]
+__all__ = ["run_montecarlo", "run_chunk", "sample_plants", "summarize", "report_markdown", "sample_units",
+           "load_sample_flats"]
 
 SENSITIVITY_EXTRA = ("mode_1_hz", "xy_split_percent", "disk_margin_alpha")
 SPREAD_ENGINE = "twin-spread"
@@ -370,6 +371,11 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
 
 def _load(out: Path, sub: str, n: int) -> list[dict]:
     return [json.loads(_sample_path(out, sub, i).read_text()) for i in range(n) if _sample_path(out, sub, i).is_file()]
+
+
+def load_sample_flats(out: Path, n: int) -> list[dict]:
+    """The flat records (metrics and plant-level figures) of the twin samples ``0 ... n-1`` found in ``out``."""
+    return [_flat(r) for r in _load(Path(out), A.MC_SAMPLES_DIR, n)]
 
 
 def _flat(rec: dict) -> dict:

@@ -10,7 +10,7 @@ import numpy as np
 
 from nanosim.plots.style import subplots
 
-__all__ = ["fig_histograms", "fig_sensitivity", "fig_crosscheck", "fig_pareto"]
+__all__ = ["fig_histograms", "fig_sensitivity", "fig_crosscheck", "fig_pareto", "fig_bench"]
 
 
 def fig_histograms(flats: list, spec: dict):
@@ -123,4 +123,38 @@ def fig_pareto(points: list, front: list, x: str, y: str, c: str, labels: dict |
     ax.ticklabel_format(useOffset=False)      # the values themselves, however close (no "+7.4e1" offset)
     ax.grid(alpha=0.3)
     ax.set_title("Design sweep: bandwidth vs travel vs resolution (red: Pareto-optimal, ties counted)")
+    return fig
+
+
+def fig_bench(rows: list, alphas: dict):
+    """Controllers on the same stages: yield over every limit (with its 95 % interval) and the distribution of
+    the twin's disk margin alpha (``alphas``: ``{controller: [alpha per sample]}``).
+    """
+    names = [r["controller"] for r in rows]
+    fig, (ax1, ax2) = subplots(1, 2, figsize=(12, 0.45 * len(names) + 2.5), sharey=True)
+    y = np.arange(len(names))
+    yl = np.array([r["yield_percent"] for r in rows], float)
+    ci = np.array([r["ci95_percent"] for r in rows], float)
+    ax1.barh(y, yl, color="tab:blue", alpha=0.7)
+    ax1.errorbar(yl, y, xerr=[yl - ci[:, 0], ci[:, 1] - yl], fmt="none", ecolor="k", capsize=3)
+    ax1.set_xlim(0, 100)
+    ax1.set_xlabel("yield, every limit [%] (bar: 95 % interval)")
+    ax1.set_yticks(y, names)
+    ax1.grid(alpha=0.3, axis="x")
+    data = [np.asarray(alphas.get(n, []), float) for n in names]
+    data = [d[np.isfinite(d)] for d in data]
+    for k, d in enumerate(data):               # drawn by hand: boxplot's orientation keyword moved in 3.10
+        if not d.size:
+            continue
+        p5, q1, med, q3, p95 = np.percentile(d, [5, 25, 50, 75, 95])
+        ax2.plot([p5, p95], [k, k], color="k", lw=1)
+        ax2.plot([q1, q3], [k, k], color="tab:blue", lw=8, solid_capstyle="butt", alpha=0.7)
+        ax2.plot([med], [k], "|", color="k", ms=14, mew=2)
+        out = d[(d < p5) | (d > p95)]
+        ax2.plot(out, np.full(out.size, k), ".", color="0.4", ms=3)
+    ax2.set_xlabel("disk margin alpha, twin (bar: quartiles and median; line: 5-95 %; dots: the rest)")
+    ax2.grid(alpha=0.3, axis="x")
+    ax2.invert_yaxis()
+    n = rows[0]["n"] if rows else 0
+    fig.suptitle(f"{len(names)} controllers on the same {n} fabricated stages")
     return fig
