@@ -90,6 +90,9 @@ def test_wilson_interval_and_yield_table():
     assert lo == 0.0 and hi == pytest.approx(0.2775, abs=1e-4)       # textbook value, z = 1.96
     lo, hi = mc_stats.wilson_interval(8, 10)
     assert (lo, hi) == pytest.approx((0.4902, 0.9433), abs=1e-4)
+    # every sample passing: the upper end is 1 exactly (the formula alone gives 0.9999999999999999 at n = 100)
+    for n in (2, 100, 200, 1000):
+        assert mc_stats.wilson_interval(n, n)[1] == 1.0 and mc_stats.wilson_interval(0, n)[0] == 0.0
     spec = mc_stats.check_spec({"limits": [{"metric": "bandwidth_S_hz", "min": 28, "unit": "Hz"},
                                            {"metric": "step_2um.overshoot_percent", "max": 10, "unit": "%"}]})
     flats = [{"bandwidth_S_hz": b, "step_2um.overshoot_percent": o} for b, o in ((30, 5), (27, 5), (29, 12), (31, 1))]
@@ -213,6 +216,16 @@ def test_montecarlo_writes_per_sample_resumes_and_seals(tmp_path, controller_npz
     with pytest.raises(RunFolderError, match="another controller, seed"):
         run_montecarlo(controller_npz, out, MonteCarloConfig(n=2, seed=5, crosscheck=0, workers=1,
                                                              experiments=("small_steps",)), progress=False)
+
+
+def test_bench_figure_takes_an_interval_end_rounded_past_its_yield():
+    # a 95 % interval computed elsewhere may end an ulp below a 100 % yield: drawn, not refused
+    from nanosim.plots.montecarlo import fig_bench
+
+    rows = [{"controller": "a", "n": 100, "yield_percent": 100.0, "ci95_percent": [96.3, 99.99999999999999]},
+            {"controller": "b", "n": 100, "yield_percent": 0.0, "ci95_percent": [1e-15, 3.7]}]
+    fig = fig_bench(rows, {"a": [0.1, 0.2, 0.15], "b": []})
+    assert len(fig.axes) == 2
 
 
 def test_controller_names_are_stems_or_folder_stems():

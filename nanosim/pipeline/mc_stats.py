@@ -234,7 +234,8 @@ def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     d = 1 + z * z / n
     c = (p + z * z / (2 * n)) / d
     h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return (max(0.0, c - h), min(1.0, c + h))
+    # at k = 0 (k = n) the lower (upper) end is 0 (1) exactly; the formula rounds it by an ulp
+    return (0.0 if k == 0 else max(0.0, c - h), 1.0 if k == n else min(1.0, c + h))
 
 
 def yield_table(flats: list[dict], spec: dict) -> list[dict]:

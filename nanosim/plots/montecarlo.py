@@ -136,7 +136,8 @@ def fig_bench(rows: list, alphas: dict):
     yl = np.array([r["yield_percent"] for r in rows], float)
     ci = np.array([r["ci95_percent"] for r in rows], float)
     ax1.barh(y, yl, color="tab:blue", alpha=0.7)
-    ax1.errorbar(yl, y, xerr=[yl - ci[:, 0], ci[:, 1] - yl], fmt="none", ecolor="k", capsize=3)
+    err = np.clip([yl - ci[:, 0], ci[:, 1] - yl], 0.0, None)       # an interval's end may round past its yield
+    ax1.errorbar(yl, y, xerr=err, fmt="none", ecolor="k", capsize=3)
     ax1.set_xlim(0, 100)
     ax1.set_xlabel("yield, every limit [%] (bar: 95 % interval)")
     ax1.set_yticks(y, names)
