@@ -64,8 +64,9 @@ CROSSCHECK_RESOLUTION = {
 
 # The twin's reading spread at indistinguishable physics. In a loop with a quantized DAC and ADC a change far below
 # any physical one (the input gain scaled by 0.1 ppm) moves which count each reading rounds to, and the loop carries
-# that on: the table's path differs by up to 3-4 nm at the lightly damped 460-470 Hz modes (measured twin against
-# twin, and twin against MuJoCo; with both quantizers and the noise off, twin and MuJoCo paths agree to 0.09 nm rms).
+# that on: table paths part by several nm at the lightly damped 460-470 Hz modes (twin against MuJoCo up to 3-4 nm;
+# twins 0-8 ppm apart 6-8 nm, tests/test_montecarlo.py; with both quantizers and the noise off, twin and MuJoCo
+# paths agree to 0.09 nm rms, the twins to 0.01 nm).
 # A metric read off one sample, such as the 2 um step's peak, is then a draw from a spread several counts wide (the
 # overshoot of one sample reads 12.1-13.8 nm over twins whose gains differ by at most 8 ppm; the same spread for
 # steps of 0.1 ppm and 1 ppm). The cross-check therefore runs each cross-checked sample's twin 2 K + 1 times, its
