@@ -390,6 +390,7 @@ def test_crosscheck_agrees_within_the_resolution_of_the_twins_spread():
     c = mc_stats.compare_crosscheck(twin, mj, spread=spread)
     row = c["metrics"][m]
     assert c["all_ok"] and row["within_spread"] and not row["within_resolution"] and not row["ok_relative"]
+    assert not row["ok_without_spread"] and not c["all_ok_without_spread"]
     assert row["spread_gap"] * 20 == pytest.approx(1.44, abs=1e-9) and row["spread_gap"] * 20 / lsb < 2
     spread[m]["max"] = 0.60
     row = mc_stats.compare_crosscheck(twin, mj, spread=spread)["metrics"][m]

@@ -328,8 +328,8 @@ def sensitivity(X: np.ndarray, names: list[str], groups: list[str], flats: list[
 def compare_crosscheck(twin: dict, mujoco: dict, metrics=CROSSCHECK_METRICS, rel_tol: float = CROSSCHECK_REL_TOL,
                        resolution: dict | None = None, spread: dict | None = None) -> dict:
     """Twin vs MuJoCo for one sample: ``{metric: {twin, mujoco, rel_diff, abs_diff, resolution, within_resolution,
-    ok, ok_relative}}`` (with ``spread``, also ``twin_min, twin_max, twin_mean, spread_gap, within_spread``),
-    ``all_ok`` and ``all_ok_relative``.
+    ok, ok_relative, ok_without_spread}}`` (with ``spread``, also ``twin_min, twin_max, twin_mean, spread_gap,
+    within_spread``), ``all_ok``, ``all_ok_relative`` and ``all_ok_without_spread``.
 
     Compares ``metrics`` (default: the pipeline report's MuJoCo-vs-twin quantities) where both
     have them; when none is present (other experiments), every metric the two share. ``ok``: the
@@ -337,7 +337,8 @@ def compare_crosscheck(twin: dict, mujoco: dict, metrics=CROSSCHECK_METRICS, rel
     ``resolution`` (default :data:`CROSSCHECK_RESOLUTION`; 0 for a metric not in it), or (given the
     twin's ``spread``, :func:`reading_spread` of its runs at indistinguishable physics) the MuJoCo
     reading lies within ``resolution`` of the twin's range ``[min, max]`` (``spread_gap``: its distance
-    from the range, 0 inside); ``ok_relative``: the relative test alone.
+    from the range, 0 inside); ``ok_relative``: the relative test alone; ``ok_without_spread``: ``ok``
+    without the spread.
     """
     res = CROSSCHECK_RESOLUTION if resolution is None else resolution
     names = [m for m in metrics if m in twin and m in mujoco] or sorted(set(twin) & set(mujoco))
@@ -350,7 +351,8 @@ def compare_crosscheck(twin: dict, mujoco: dict, metrics=CROSSCHECK_METRICS, rel
         q = float(res.get(m, 0.0))
         within = abs(a - b) <= q * (1 + 1e-9)
         row = {"twin": a, "mujoco": b, "rel_diff": rel, "abs_diff": abs(a - b), "resolution": q,
-               "within_resolution": within, "ok": rel <= rel_tol or within, "ok_relative": rel <= rel_tol}
+               "within_resolution": within, "ok": rel <= rel_tol or within, "ok_relative": rel <= rel_tol,
+               "ok_without_spread": rel <= rel_tol or within}
         if spread is not None and m in spread:
             lo, hi = float(spread[m]["min"]), float(spread[m]["max"])
             gap = max(lo - b, b - hi, 0.0)
@@ -359,7 +361,8 @@ def compare_crosscheck(twin: dict, mujoco: dict, metrics=CROSSCHECK_METRICS, rel
             row["ok"] = row["ok"] or row["within_spread"]
         rows[m] = row
     return {"metrics": rows, "all_ok": all(r["ok"] for r in rows.values()) if rows else False,
-            "all_ok_relative": all(r["ok_relative"] for r in rows.values()) if rows else False}
+            "all_ok_relative": all(r["ok_relative"] for r in rows.values()) if rows else False,
+            "all_ok_without_spread": all(r["ok_without_spread"] for r in rows.values()) if rows else False}
 
 
 def crosscheck_bias(cross: Sequence[dict]) -> dict:

@@ -424,9 +424,7 @@ def summarize(out: Path, settings: MonteCarloConfig, spec: dict, names, tm) -> d
                "crosscheck_resolution": dict(mc_stats.CROSSCHECK_RESOLUTION),
                "crosscheck_spread": {"input_gain_factors": mc_stats.spread_gain_factors().tolist(),
                                      "folder": A.MC_SPREAD_DIR},
-               "crosscheck_pass_without_spread": sum(
-                   all(r["rel_diff"] <= mc_stats.CROSSCHECK_REL_TOL or r["within_resolution"]
-                       for r in c["metrics"].values()) and bool(c["metrics"]) for c in cross),
+               "crosscheck_pass_without_spread": sum(c["all_ok_without_spread"] for c in cross),
                "crosscheck_bias": mc_stats.crosscheck_bias(cross),
                "crosscheck_max_rel_diff": max((r["rel_diff"] for c in cross for r in c["metrics"].values()),
                                               default=None),
@@ -497,7 +495,7 @@ def report_markdown(summary: dict) -> str:
                      f"{_fmt(big[1]['mujoco'])} {mc_stats.unit_of(big[0])})") if big else "none"
             by_spread = [f"`{m}` ({_fmt(r['twin_min'])}-{_fmt(r['twin_max'])}, {_fmt(r['mujoco'])} "
                          f"{mc_stats.unit_of(m)})" for m, r in c["metrics"].items()
-                         if r.get("within_spread") and not (r["ok_relative"] or r["within_resolution"])]
+                         if r["ok"] and not r["ok_without_spread"]]
             lines.append(f"| #{c['sample']} | {sum(r['ok'] for r in c['metrics'].values())}/{len(c['metrics'])} | "
                          f"{worst} | {', '.join(by_spread) or 'none'} |")
         bias = summary.get("crosscheck_bias") or {}

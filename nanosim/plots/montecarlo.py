@@ -88,8 +88,7 @@ def fig_crosscheck(cross: list, tol_percent: float):
         # square: only within the resolution of the twin's reading range at indistinguishable physics
         rows = list(c["metrics"].values())
         res = np.array([r.get("within_resolution", False) for r in rows], bool)
-        spr = np.array([r.get("within_spread", False) and not (r["within_resolution"] or r["ok_relative"])
-                        for r in rows], bool)
+        spr = np.array([r["ok"] and not r["ok_without_spread"] for r in rows], bool)
         plain = ~res & ~spr
         line, = ax.plot(x[plain], y[plain], "o", ms=3, label=f"#{c['sample']}")
         ax.plot(x[res], y[res], "o", ms=4, mfc="none", color=line.get_color())
