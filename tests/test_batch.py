@@ -197,3 +197,24 @@ def test_data_dependent_control_flow_falls_back_to_single_members(plants):
             assert metrics[b]["last_um"] == single.sensor_um[-1].tolist()
     finally:
         unregister("t_divergent")
+
+
+def test_twin_matrices_of_a_twin_and_its_input_scaled_copy(plants):
+    # TwinMatrices.of reads the twin's discrete sysd_V; input_scaled(f) scales its static gain C (I - A)^-1 B + D
+    # by exactly f (B and D scaled, A and C shared), and leaves the free response alone
+    from nanosim.plant.batch import TwinMatrices
+
+    tw = plants[0]["twin"]
+    m = TwinMatrices.of(tw)
+    np.testing.assert_array_equal(m.A, np.asarray(tw.sysd_V.A))
+    assert all(np.array_equal(a, b) for a, b in zip(TwinMatrices.of(m), m))
+
+    def dc(t):
+        return t.C @ np.linalg.solve(np.eye(t.A.shape[0]) - t.A, t.B) + t.D
+
+    f = 1.0 + 3e-6
+    s = m.input_scaled(f)
+    assert s.A is m.A and s.C is m.C
+    np.testing.assert_allclose(dc(s), f * dc(m), rtol=1e-12, atol=1e-12 * np.abs(dc(m)).max())
+    with pytest.raises(ValueError, match="twins: expected a LinearTwin or TwinMatrices, got list"):
+        TwinMatrices.of([1, 2])

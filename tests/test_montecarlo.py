@@ -428,9 +428,7 @@ def test_quantizers_make_the_loop_path_sensitive_to_a_ppm_gain_change():
     from nanosim.design.controller import ControllerConfig
     from nanosim.design.lti import load_state_space_npz
     from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
-    from nanosim.experiments.batch_suite import MemberPlant
-    from nanosim.pipeline.montecarlo import _gain_scaled
-    from nanosim.plant.batch import BatchTwinStage
+    from nanosim.plant.batch import BatchTwinStage, TwinMatrices
     from nanosim.plant.floor import floor_model
     from nanosim.plant.linearize import linearize
     from nanosim.plant.stage import Stage, StageConfig
@@ -439,9 +437,9 @@ def test_quantizers_make_the_loop_path_sensitive_to_a_ppm_gain_change():
     ctrl = ControllerConfig(np.asarray(K.A), np.asarray(K.B), np.asarray(K.C), np.asarray(K.D), float(K.dt),
                             n_error=3)
     m = load_model()
-    base = MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=m)))
+    base = TwinMatrices.of(linearize(Stage(config=StageConfig.ideal(), model=m)))
     factors = mc_stats.spread_gain_factors()
-    twins = [_gain_scaled(base, f).twin for f in factors]
+    twins = [base.input_scaled(f) for f in factors]
     home = Stage(model=m).table_um.copy()
     ref = np.zeros((1240, 3))
     ref[40:, 0] = 2.0

@@ -36,6 +36,7 @@ everything is written.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import math
@@ -142,62 +143,41 @@ def sample_plants(indices, seed: int, ctrl=None, mjcf=None, with_loop: bool = Tr
 def run_chunk(plan: dict, indices: list, engine: str, sink) -> list[dict]:
     """Worker task: samples ``indices`` (plant records and experiments on ``engine``); JSON-ready records.
 
-    Each record's ``seconds`` (the chunk's wall time per sample) is moved to ``timings.json`` by the driver.
+    ``engine`` ``"twin"`` or ``"mujoco"``: each sample's experiments; :data:`SPREAD_ENGINE`: each sample's twin
+    at every :func:`mc_stats.spread_gain_factors`, all in one batch, and per sample the
+    :func:`mc_stats.reading_spread` of the flat metrics. Each record's ``seconds`` (the chunk's wall time per
+    sample) is moved to ``timings.json`` by the driver.
     """
     from nanosim import experiments
     from nanosim.design.lti import single_threaded_blas
     from nanosim.experiments.batch_suite import run_experiments_batch
+    from nanosim.plant.batch import TwinMatrices
 
     t0 = time.perf_counter()
     experiments.load_builtin()
     ctrl = _controller_config(plan["controller"])
-    if engine == SPREAD_ENGINE:
-        return _spread_chunk(plan, indices, ctrl, sink, t0)
+    spread = engine == SPREAD_ENGINE
+    factors = mc_stats.spread_gain_factors() if spread else np.ones(1)
     with single_threaded_blas():
         plants, records, _ = sample_plants(indices, plan["seed"], ctrl, plan.get("mjcf"), with_loop=engine == "twin")
         sink.put(len(indices))
+        members = ([dataclasses.replace(p, twin=TwinMatrices.of(p.twin).input_scaled(f)) for p in plants
+                    for f in factors] if spread else plants)
         # exact products: a sample's numbers do not depend on which samples share its batch (chunking,
         # executor, resumed runs)
-        metrics, _ = run_experiments_batch(plan["experiments"], plants, ctrl, engine=engine, seed=plan["seed"],
-                                           exact=True, nthread=1, progress=lambda name: sink.put(len(indices)))
+        metrics, _ = run_experiments_batch(plan["experiments"], members, ctrl, engine="twin" if spread else engine,
+                                           seed=plan["seed"], exact=True, nthread=1,
+                                           progress=lambda name: sink.put(len(indices)))
     dt = (time.perf_counter() - t0) / max(1, len(indices))
+    if spread:
+        k = len(factors)
+        return [{"index": int(i), "engine": SPREAD_ENGINE, "input_gain_factors": factors.tolist(),
+                 "spread": mc_stats.reading_spread([mc_stats.flatten_metrics(m) for m in metrics[j * k:(j + 1) * k]]),
+                 "seconds": dt} for j, i in enumerate(indices)]
     out = []
     for rec, met in zip(records, metrics):
         rec.update(engine=engine, metrics=met, seconds=dt)
         out.append(rec if engine == "twin" else {k: rec[k] for k in ("index", "engine", "metrics", "seconds")})
-    return out
-
-
-def _gain_scaled(plant, factor: float):
-    """``plant`` with its twin's input gain scaled by ``factor`` (the B and D of the discrete twin)."""
-    import dataclasses
-
-    from nanosim.plant.batch import TwinMatrices, _twin_matrices
-
-    A_, B_, C_, D_ = _twin_matrices(plant.twin)
-    return dataclasses.replace(plant, twin=TwinMatrices(A_, B_ * factor, C_, D_ * factor))
-
-
-def _spread_chunk(plan: dict, indices: list, ctrl, sink, t0: float) -> list[dict]:
-    """The twin's reading spread of samples ``indices``: each sample's twin at every ``spread_gain_factors``,
-    all in one batch; per sample the :func:`mc_stats.reading_spread` of the flat metrics.
-    """
-    from nanosim.design.lti import single_threaded_blas
-    from nanosim.experiments.batch_suite import run_experiments_batch
-
-    factors = mc_stats.spread_gain_factors()
-    with single_threaded_blas():
-        plants, _, _ = sample_plants(indices, plan["seed"], ctrl, plan.get("mjcf"), with_loop=False)
-        sink.put(len(indices))
-        members = [_gain_scaled(p, f) for p in plants for f in factors]
-        metrics, _ = run_experiments_batch(plan["experiments"], members, ctrl, engine="twin", seed=plan["seed"],
-                                           exact=True, nthread=1, progress=lambda name: sink.put(len(indices)))
-    dt = (time.perf_counter() - t0) / max(1, len(indices))
-    out = []
-    for j, i in enumerate(indices):
-        flats = [mc_stats.flatten_metrics(m) for m in metrics[j * len(factors):(j + 1) * len(factors)]]
-        out.append({"index": int(i), "engine": SPREAD_ENGINE, "input_gain_factors": factors.tolist(),
-                    "spread": mc_stats.reading_spread(flats), "seconds": dt})
     return out
 
 

@@ -219,14 +219,19 @@ class TwinMatrices(NamedTuple):
     C: np.ndarray
     D: np.ndarray
 
+    @classmethod
+    def of(cls, tw) -> "TwinMatrices":
+        """The float matrices of a :class:`~nanosim.plant.twin.LinearTwin` (its ``sysd_V``) or a ``TwinMatrices``."""
+        if isinstance(tw, TwinMatrices):
+            return cls(*(np.asarray(m, dtype=float) for m in tw))
+        if hasattr(tw, "sysd_V"):
+            s = tw.sysd_V
+            return cls(*(np.asarray(m, dtype=float) for m in (s.A, s.B, s.C, s.D)))
+        raise ValueError(f"twins: expected a LinearTwin or TwinMatrices, got {type(tw).__name__}")
 
-def _twin_matrices(tw) -> tuple:
-    if isinstance(tw, TwinMatrices):
-        return tuple(np.asarray(m, dtype=float) for m in tw)
-    if hasattr(tw, "sysd_V"):
-        s = tw.sysd_V
-        return tuple(np.asarray(m, dtype=float) for m in (s.A, s.B, s.C, s.D))
-    raise ValueError(f"twins: expected a LinearTwin or TwinMatrices, got {type(tw).__name__}")
+    def input_scaled(self, factor: float) -> "TwinMatrices":
+        """This twin with its input gain times ``factor`` (``B`` and ``D`` scaled)."""
+        return TwinMatrices(self.A, self.B * factor, self.C, self.D * factor)
 
 
 def member_products(PS: np.ndarray, xv: np.ndarray) -> np.ndarray:
@@ -244,11 +249,11 @@ def member_products(PS: np.ndarray, xv: np.ndarray) -> np.ndarray:
 def _stack_twins(twins, n: int):
     """Shared ``(A, B, C, D)`` or per-member stacks ``(n, ., .)``."""
     if isinstance(twins, TwinMatrices) or hasattr(twins, "sysd_V"):
-        return False, _twin_matrices(twins)
+        return False, TwinMatrices.of(twins)
     twins = list(twins)
     if len(twins) != n:
         raise ValueError(f"twins: expected {n} twins (one per seed), got {len(twins)}")
-    ms = [_twin_matrices(t) for t in twins]
+    ms = [TwinMatrices.of(t) for t in twins]
     shapes = {tuple(m.shape for m in mm) for mm in ms}
     if len(shapes) != 1:
         raise ValueError(f"twins: expected twins of one order, got shapes {sorted(shapes)}")
