@@ -422,7 +422,8 @@ def _add_design_arguments(parser) -> None:
     parser.add_argument("--architecture", choices=DESIGN_ARCHITECTURES, default=DEFAULT_ARCHITECTURE,
                         help=f"exported controller (default {DEFAULT_ARCHITECTURE}, the bench's default by the "
                              "scorecard rule; lqg-gain-range: the lqg with its disk margin over the piezo's whole gain "
-                             "range, slower steps; hinf: the H-infinity design of "
+                             "range, slower steps; lqg-bandwidth: the fastest lqg its robustness checks accept; "
+                             "hinf: the H-infinity design of "
                              "--weights/--reduced-order/--damping-zeta)")
 
 

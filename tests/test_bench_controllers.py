@@ -171,6 +171,40 @@ def test_lqg_gain_range_holds_its_disk_margin_at_both_ends_of_the_piezo_gain_ran
                     or row["worst_spectral_radius"] >= 1.0 or row["mu_peak"] >= 1.0), row
 
 
+def test_lqg_bandwidth_is_the_robust_rule_at_the_smallest_control_weight_it_meets(designs, model):
+    """The lqg-bandwidth rule (outside the scored bench): the robust lqg at control weights from 1/300 of its own
+    upward, the first whose pick meets every check. The pick meets them (disk margin >= 0.42 on an independent grid,
+    stable at every vertex, mixed mu < 1); every smaller weight tried failed; no reference prefilter, so reference
+    to error is close to S; faster than the lqg on both counts."""
+    from nanosim.design.architectures import BENCH, DESIGN_RULES, design
+    from nanosim.design.architectures.common import reference_error_bandwidth_hz, sensitivity_bandwidth_hz
+    from nanosim.design.architectures.lqg import BANDWIDTH_CONTROL_WEIGHTS, ROBUST_MIN_DISK_MARGIN, design_lqg
+    assert "lqg-bandwidth" in DESIGN_RULES and "lqg-bandwidth" not in BENCH
+    d = design("lqg-bandwidth", model)
+    p = d.parameters
+    assert d.name == "lqg-bandwidth" and p["rule"] == "bandwidth" and p["robust_rule_met"] is True
+    assert p["uncertainty_vertices"]["all_stable"] and p["mu_peak"] < 1.0 and p["reference_prefilter"] is None
+    assert d.tuning_rule.startswith("the robust rule below at the smallest LQR control weight")
+    levels = p["bandwidth_search"]
+    assert [lv["control_weight"] for lv in levels] == list(BANDWIDTH_CONTROL_WEIGHTS[:len(levels)])
+    assert levels[-1]["control_weight"] == p["control_weight"] and levels[-1]["robust_rule_met"] is True
+    assert all("error" in lv or lv["robust_rule_met"] is False for lv in levels[:-1])
+    assert all(row["control_weight"] == p["control_weight"] for row in p["tried"])
+    f = np.unique(np.concatenate([np.geomspace(0.1, 1999.0, 900), np.linspace(440, 520, 400)]))
+    Ke, Ky = d.split()
+    r = loop_response(freqresp_z(model, f), f, Ke, Ky, delay_samples=0)
+    assert disk_margin_summary(r)["multiloop"] >= ROBUST_MIN_DISK_MARGIN - 0.005
+    bw = p["predicted_bandwidth_S_hz"]
+    assert sensitivity_bandwidth_hz(r) == pytest.approx(bw, rel=0.01)
+    assert reference_error_bandwidth_hz(r) == pytest.approx(p["predicted_bandwidth_ref_to_error_hz"], rel=0.01)
+    assert p["predicted_bandwidth_ref_to_error_hz"] >= 0.8 * bw
+    lqg = designs["lqg"].parameters
+    assert bw >= 1.1 * lqg["predicted_bandwidth_S_hz"]
+    assert p["predicted_bandwidth_ref_to_error_hz"] >= 1.2 * lqg["predicted_bandwidth_ref_to_error_hz"]
+    with pytest.raises(ValueError, match="seek_bandwidth: expected robust=True"):
+        design_lqg(model, robust=False, seek_bandwidth=True)
+
+
 def test_hinf_damped_uses_the_pipeline_defaults():
     from nanosim.design.architectures import hinf_damped as h
     from nanosim.pipeline.config import DesignConfig

@@ -242,3 +242,21 @@ def test_gain_range_rule_designed_at_the_identified_gain_takes_the_largest_margi
     tops = [r["multiloop_disk_margin_top"] for r in p["tried"] if "multiloop_disk_margin_top" in r]
     assert tops and max(tops) < 0.3 and p["predicted_disk_margin_top_of_gain_range"]["multiloop"] == max(tops)
     assert p["predicted_disk_margin"]["multiloop"] >= ROBUST_MIN_DISK_MARGIN
+
+
+def test_bandwidths_of_a_discrete_integrator_loop_match_the_closed_form():
+    # u = Ke (r - y) around G = I with Ke = a / (z - 1): S = (z - 1) / (z - 1 + a), and |S(e^{j w T})| = 1/sqrt(2) at
+    # cos(w T) = (3 - (1 - a)^2) / (2 + 2 a). One degree of freedom: reference to error is S itself. With half the
+    # reference fed past the loop (Ky = Ke / 2, so the feedback is halved and T_ry = G Ke S_o), the reference-to-error
+    # map is no longer S_o, and the two figures part
+    from nanosim.design.architectures.common import reference_error_bandwidth_hz, sensitivity_bandwidth_hz
+    a = 0.2
+    Ke = ct.ss(np.eye(3), a * np.eye(3), np.eye(3), np.zeros((3, 3)), DT_S)
+    G = ct.ss(np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((3, 0)), np.eye(3), DT_S)
+    f = np.geomspace(1.0, 1999.0, 20000)
+    r = loop_response(freqresp_z(G, f), f, Ke, None, delay_samples=0)
+    exact = np.arccos((3 - (1 - a) ** 2) / (2 + 2 * a)) / (2 * np.pi * DT_S)
+    assert sensitivity_bandwidth_hz(r) == pytest.approx(exact, rel=1e-4)
+    assert reference_error_bandwidth_hz(r) == pytest.approx(exact, rel=1e-4)
+    r2 = loop_response(freqresp_z(G, f), f, Ke, 0.5 * Ke, delay_samples=0)
+    assert reference_error_bandwidth_hz(r2) != pytest.approx(sensitivity_bandwidth_hz(r2), rel=0.05)

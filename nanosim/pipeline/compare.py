@@ -324,6 +324,6 @@ def run_compare(out_dir, config: CompareConfig, *, mjcf=None, progress=None) -> 
 
 
 def _is_bench(spec: str) -> bool:
-    from nanosim.design.architectures import BENCH
-    return spec in BENCH
+    from nanosim.design.architectures import DESIGN_RULES
+    return spec in DESIGN_RULES
 

@@ -21,8 +21,9 @@ __all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConf
 # design layer uses them too), re-exported here
 # the exported controller of `nanosim design` (#13, chosen by the bench's scorecard rule): "lqg" is the bench
 # design nanosim.design.architectures.lqg; "hinf" the H-infinity design these settings describe (the paper's
-# with --paper-design, else hinf-damped); "lqg-gain-range" the lqg with its disk margin held over the piezo's gain range
-DESIGN_ARCHITECTURES = ("lqg", "hinf", "lqg-gain-range")
+# with --paper-design, else hinf-damped); "lqg-gain-range" the lqg with its disk margin held over the piezo's gain
+# range; "lqg-bandwidth" the fastest loop the lqg's robustness checks accept (a sweep's bandwidth rule)
+DESIGN_ARCHITECTURES = ("lqg", "hinf", "lqg-gain-range", "lqg-bandwidth")
 DEFAULT_ARCHITECTURE = "lqg"
 
 
@@ -102,7 +103,8 @@ class DesignConfig:
         The exported controller: ``"lqg"`` (default, :mod:`nanosim.design.architectures.lqg`; the
         H-infinity design is still made and described in ``design.json`` as the reference),
         ``"lqg-gain-range"`` (the same with its disk margin required at both ends of the piezo's gain
-        range, ``gain_range_margin=True``) or ``"hinf"`` (the H-infinity design itself).
+        range, ``gain_range_margin=True``), ``"lqg-bandwidth"`` (the robust lqg's checks on faster members, the
+        fastest accepted, ``seek_bandwidth=True``) or ``"hinf"`` (the H-infinity design itself).
     """
 
     reduced_order: int = DEFAULT_REDUCED_ORDER

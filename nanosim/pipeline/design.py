@@ -236,8 +236,8 @@ def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNC
 
 def _export_lqg(out: Path, G, dt: float, loop_delay: int, units, say,
                 architecture: str = "lqg") -> dict:
-    """Overwrite ``controller.npz`` with the LQG bench design ``architecture`` (``"lqg"`` or
-    ``"lqg-gain-range"``, :mod:`nanosim.design.architectures.lqg`); the ``design.json`` entries that say so.
+    """Overwrite ``controller.npz`` with the LQG design ``architecture`` (``"lqg"``, ``"lqg-gain-range"`` or
+    ``"lqg-bandwidth"``, :mod:`nanosim.design.architectures.lqg`); the ``design.json`` entries that say so.
     """
     from nanosim.design.architectures import design
     bd = design(architecture, G, dt=dt, delay_samples=loop_delay)

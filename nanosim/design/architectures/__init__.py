@@ -15,6 +15,10 @@
   margin required at both ends of the set's piezo-gain range (the identified slope after a reversal and the
   nominal slope of a monotone move), designed at the range's top.
 
+Outside the scored bench (:data:`DESIGN_RULES`, which :func:`design` accepts too): ``lqg-bandwidth`` -- the robust
+lqg at the smallest control weight (from 1/300 of its own up) at which its pick meets every check, without the
+reference prefilter: the fastest loops its robustness checks accept (``nanosim sweep --architecture lqg-bandwidth``).
+
 :mod:`.protocol` turns a name, a file or ``module:function`` into a controller.
 """
 from __future__ import annotations
@@ -23,7 +27,7 @@ from typing import Callable
 
 from nanosim.design.architectures.common import DT_S, LOOP_DELAY_SAMPLES, BenchDesign
 
-__all__ = ["BENCH", "BenchDesign", "design", "design_bench", "DT_S", "LOOP_DELAY_SAMPLES"]
+__all__ = ["BENCH", "DESIGN_RULES", "BenchDesign", "design", "design_bench", "DT_S", "LOOP_DELAY_SAMPLES"]
 
 
 def _paper(G, **kw):
@@ -89,11 +93,23 @@ BENCH: dict[str, Callable[..., BenchDesign]] = {
 }
 
 
+def _lqg_bandwidth(G, **kw):
+    import dataclasses
+
+    from nanosim.design.architectures.lqg import design_lqg
+    kw.setdefault("reference_prefilter", False)      # the fastest reference path too (the notch costs ~12 Hz)
+    return dataclasses.replace(design_lqg(G, seek_bandwidth=True, **kw), name="lqg-bandwidth")
+
+
+# every named design: the scored bench, then the rules outside it
+DESIGN_RULES: dict[str, Callable[..., BenchDesign]] = {**BENCH, "lqg-bandwidth": _lqg_bandwidth}
+
+
 def design(name: str, G, **kwargs) -> BenchDesign:
-    """Design the bench architecture ``name`` from the identified plant ``G``."""
-    if name not in BENCH:
-        raise ValueError(f"name: expected one of {list(BENCH)}, got {name!r}")
-    return BENCH[name](G, **kwargs)
+    """Design the named architecture (:data:`DESIGN_RULES`: the bench's and ``lqg-bandwidth``) from ``G``."""
+    if name not in DESIGN_RULES:
+        raise ValueError(f"name: expected one of {list(DESIGN_RULES)}, got {name!r}")
+    return DESIGN_RULES[name](G, **kwargs)
 
 
 def design_bench(G, names=None, **kwargs) -> dict[str, BenchDesign]:

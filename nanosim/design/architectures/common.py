@@ -36,7 +36,8 @@ from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES, loop_transfer_re
 __all__ = ["DT_S", "LOOP_DELAY_SAMPLES", "BenchDesign", "stack_2dof", "split_2dof", "as_discrete", "as_continuous",
            "dc_gain_z", "lightly_damped_modes", "distinct_modes_hz", "mode_groups", "tf_to_ss", "notch", "lowpass2",
            "pi_leaky", "series_siso", "diag_ss", "static_ss", "freqresp_z", "analysis_grid_hz", "loop_response",
-           "disk_margin_summary", "loop_at_a_time_alpha", "sensitivity_bandwidth_hz", "max_gain",
+           "disk_margin_summary", "loop_at_a_time_alpha", "sensitivity_bandwidth_hz",
+           "reference_error_bandwidth_hz", "max_gain",
            "closed_loop_spectral_radius", "uncertainty_vertex_check"]
 
 DT_S = constants.CONTROL_PERIOD_S
@@ -341,8 +342,20 @@ def disk_margin_summary(r, multiloop: bool = True) -> dict:
 
 def sensitivity_bandwidth_hz(r, level: float = 1 / math.sqrt(2)) -> float:
     """First frequency where ``sigma_max(S_o)`` rises through ``level`` (-3 dB) [Hz]."""
-    s = np.linalg.norm(r.S_o, ord=2, axis=(1, 2))
-    f = r.freq_hz
+    return _first_rise_hz(np.linalg.norm(r.S_o, ord=2, axis=(1, 2)), r.freq_hz, level)
+
+
+def reference_error_bandwidth_hz(r, level: float = 1 / math.sqrt(2)) -> float:
+    """First frequency where ``sigma_max(I - T_ry)``, reference to error through the whole two-degree-of-freedom
+    controller (prefilter included), rises through ``level`` (-3 dB) [Hz]: what the bandwidth experiment's
+    reference-to-error PRBS measures. Equal to :func:`sensitivity_bandwidth_hz` for a one-degree-of-freedom loop.
+    """
+    E = np.eye(r.T_ry.shape[1])[None] - r.T_ry
+    return _first_rise_hz(np.linalg.norm(E, ord=2, axis=(1, 2)), r.freq_hz, level)
+
+
+def _first_rise_hz(s: np.ndarray, f: np.ndarray, level: float) -> float:
+    """First frequency of ``f`` where ``s`` rises through ``level``, log-linear between grid points [Hz]."""
     above = np.flatnonzero(s >= level)
     if not above.size:
         return float("inf")

@@ -135,9 +135,9 @@ class ControllerSpec:
 
 
 def is_bench_name(spec: str) -> bool:
-    """True if ``spec`` names a bench architecture."""
-    from nanosim.design.architectures import BENCH
-    return spec in BENCH
+    """True if ``spec`` names a bench architecture or another named design rule (``DESIGN_RULES``)."""
+    from nanosim.design.architectures import DESIGN_RULES
+    return spec in DESIGN_RULES
 
 
 def _n_error(n_in: int, n_out: int, given) -> int | None:
@@ -257,10 +257,10 @@ def load_controller(spec: str, model=None, *, dt: float = DT_S, n: int = 3) -> C
     -------
     ControllerSpec
     """
-    from nanosim.design.architectures import BENCH, design
+    from nanosim.design.architectures import DESIGN_RULES, design
     if not isinstance(spec, str) or not spec:
         raise ValueError(f"controller: expected a non-empty string, got {spec!r}")
-    if spec in BENCH:
+    if spec in DESIGN_RULES:
         if model is None:
             raise ValueError(f"controller {spec!r}: bench designs need the identified model (--model)")
         d = design(spec, model, dt=dt)
