@@ -504,3 +504,30 @@ def test_a_peak_minus_mean_reading_is_resolved_to_two_adc_counts():
     b[:k0] = 0.5 * q_um - eps
     a[:k0] = 0.5 * q_um + eps
     assert abs(overshoot(a) - overshoot(b)) * step_um / 100 / q_um == pytest.approx(2.0, abs=1e-6)
+
+
+def test_sweep_point_with_the_bandwidth_rule_end_to_end(tmp_path):
+    # one point (the nominal stage's fb2 web): modes from the point's model, a controller redesigned by the named rule
+    # on the point's identified twin, and the measured S bandwidth near the rule's prediction for it
+    from nanosim.design.architectures.lqg import ROBUST_MIN_DISK_MARGIN
+    from nanosim.pipeline.config import DesignConfig, SweepConfig
+    from nanosim.pipeline.sweep import run_sweep
+    from nanosim.plant.modes import modal_analysis
+
+    cfg = SweepConfig(params=(("target_mass_g", 10.0, 10.0, 1),), workers=1,
+                      design=DesignConfig(architecture="lqg-bandwidth"))
+    doc = run_sweep(tmp_path, cfg, progress=False)
+    assert doc["design"]["architecture"] == "lqg-bandwidth"
+    (pt,) = doc["points"]
+    rec = json.loads(next((tmp_path / "points").glob("*.json")).read_text())
+    first = modal_analysis(point_model({"target_mass_g": 10.0})).physical[0].freq_hz
+    assert rec["first_mode_hz"] == pytest.approx(first, rel=1e-9)
+    assert rec["architecture"] == "lqg-bandwidth" and rec["exported_rule_met"] is True
+    assert pt["exported_disk_margin"] >= ROBUST_MIN_DISK_MARGIN and pt["exported_mu_peak"] < 1.0
+    # measured reference to error on the twin (PRBS) inside the predictions on the identified model at the two ends
+    # of the piezo's gain range (the slope after a reversal, which it holds, and a monotone move's, 1.36 x)
+    lo = rec["exported_predicted_bandwidth_ref_to_error_hz"]
+    hi = rec["exported_predicted_bandwidth_ref_to_error_top_hz"]
+    assert 0.97 * lo <= pt["bandwidth_S_hz"] <= 1.03 * hi and hi > lo
+    report = (tmp_path / "report.md").read_text()
+    assert "--architecture lqg-bandwidth" in report and "the smallest control weight" in report

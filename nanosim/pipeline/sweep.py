@@ -30,6 +30,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import os
 import time
 from pathlib import Path
 
@@ -198,10 +199,21 @@ def design_for_point(model, config: DesignConfig | None = None, seed: int = 0) -
         run_design(tmp / A.MODEL_NPZ, tmp, config or DesignConfig(), twin=str(tmp / A.TWIN_NPZ), figures=False)
         ctrl = DiscreteController.from_npz(tmp / A.CONTROLLER_NPZ).config
         des = json.loads((tmp / A.DESIGN_JSON).read_text())
-    return ctrl, {"gamma": des.get("gamma"), "controller_order": int(ctrl.n_states),
-                  "design_bandwidth_S_hz": des.get("bandwidth_S_hz"),
-                  "design_bandwidth_T_hz": des.get("bandwidth_T_hz"),
-                  "identification_fit_min_percent": float(np.min(ident.fit_percent))}
+    out = {"gamma": des.get("gamma"), "controller_order": int(ctrl.n_states),
+           "design_bandwidth_S_hz": des.get("bandwidth_S_hz"),
+           "design_bandwidth_T_hz": des.get("bandwidth_T_hz"),
+           "identification_fit_min_percent": float(np.min(ident.fit_percent)),
+           "architecture": des.get("architecture", "hinf")}
+    exp = des.get("exported_controller")
+    if exp:                 # an lqg design: its own predicted figures on the identified model
+        p = exp["parameters"]
+        out.update(exported_predicted_bandwidth_S_hz=p.get("predicted_bandwidth_S_hz"),
+                   exported_predicted_bandwidth_ref_to_error_hz=p.get("predicted_bandwidth_ref_to_error_hz"),
+                   exported_predicted_bandwidth_ref_to_error_top_hz=p.get("predicted_bandwidth_ref_to_error_top_hz"),
+                   exported_disk_margin=(p.get("predicted_disk_margin") or {}).get("multiloop"),
+                   exported_mu_peak=p.get("mu_peak"), exported_control_weight=p.get("control_weight"),
+                   exported_rule_met=p.get("robust_rule_met"))
+    return ctrl, out
 
 
 def run_points(task: dict, points: list, sink) -> list[dict]:
@@ -326,9 +338,11 @@ def run_sweep(out, config: SweepConfig, *, progress: bool = True, say=None) -> d
     color = "resolution_nm"
     save_figure(fig_pareto(records, front, "travel_um", "bandwidth_S_hz", color, _LABELS), out / A.FIG_SWEEP_PARETO)
     table = [{k: r.get(k) for k in ("index", "label", "first_mode_hz", "travel_um", "bandwidth_S_hz",
-                                    "bandwidth_T_hz", "resolution_nm", "gamma", "controller_order", "pareto")}
+                                    "bandwidth_T_hz", "resolution_nm", "gamma", "controller_order", "pareto",
+                                    "exported_disk_margin", "exported_mu_peak", "exported_control_weight")}
              | {"values": r["values"]} for r in records]
     doc = {"parameters": [{"name": n, "values": v.tolist()} for n, v in axes], "seed": config.seed,
+           "design": {"architecture": config.design.architecture, "settings": _design_settings(config.design)},
            "experiments": list(SWEEP_EXPERIMENTS), "points": table, "pareto": front, "pareto_ties": dict(PARETO_TIES),
            "units": {"travel_um": "um (span over the command box, smallest axis)", "bandwidth_S_hz": "Hz",
                      "resolution_nm": "nm (closed-loop sigma, X, at rest)", "first_mode_hz": "Hz",
@@ -340,10 +354,24 @@ def run_sweep(out, config: SweepConfig, *, progress: bool = True, say=None) -> d
     return doc
 
 
+def _design_settings(cfg) -> dict:
+    """The sweep's design settings as JSON (``DesignConfig``'s fields; a weights file by its path)."""
+    import dataclasses
+
+    return {k: (str(v) if isinstance(v, os.PathLike) else v) for k, v in dataclasses.asdict(cfg).items()}
+
+
 def _fmt(v) -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "n/a"
     return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+_RULE_NOTE = {"lqg": ", the bench's default: the robust lqg with the least predicted noise",
+              "lqg-bandwidth": ": the robust lqg at the smallest control weight at which its pick meets every check, "
+                               "so the bandwidth is the stage's and the checks', not fixed by the weights",
+              "lqg-gain-range": ": the robust lqg with its disk margin over the piezo's gain range",
+              "hinf": ": the H-infinity design of the weights"}
 
 
 def _report(doc: dict, wall_seconds: float) -> str:
@@ -351,17 +379,22 @@ def _report(doc: dict, wall_seconds: float) -> str:
              "Parameters: " + "; ".join(f"`{p['name']}` = {', '.join(f'{x:.4g}' for x in p['values'])}"
                                         for p in doc["parameters"]), "",
              "Each point: modes, static gain and travel of the stage; a controller redesigned for it by the "
-             "pipeline's rule (the identification experiments on its linear twin, then `nanosim design` with the "
-             "default settings); bandwidth (PRBS, S) and closed-loop resolution measured on its linear twin with "
+             "pipeline's rule (the identification experiments on its linear twin, then `nanosim design "
+             f"--architecture {doc['design']['architecture']}`" + _RULE_NOTE.get(doc["design"]["architecture"], "")
+             + "); bandwidth (PRBS, S) and closed-loop resolution measured on its linear twin with "
              "every electromechanical effect on. Pareto front: bandwidth up, travel up, resolution sigma down; "
              "relative differences below " + ", ".join(f"{v:.3g} ({k})" for k, v in doc["pareto_ties"].items()) +
              " are ties (for the measured ones, their spread over seeds 0-4 on the nominal stage).", "",
              f"![Pareto figure]({A.FIG_SWEEP_PARETO})", "",
              "| # | point | first mode [Hz] | travel [um] | S bandwidth [Hz] | T bandwidth [Hz] | resolution [nm] | "
-             "gamma | Pareto |", "|---|---|---|---|---|---|---|---|---|"]
+             "disk margin | mu | R_u | Pareto |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for p in doc["points"]:
         lines.append(f"| {p['index']} | {p['label']} | {_fmt(p['first_mode_hz'])} | {_fmt(p['travel_um'])} | "
                      f"{_fmt(p['bandwidth_S_hz'])} | {_fmt(p['bandwidth_T_hz'])} | {_fmt(p['resolution_nm'])} | "
-                     f"{_fmt(p['gamma'])} | {'yes' if p['pareto'] else ''} |")
+                     f"{_fmt(p.get('exported_disk_margin'))} | {_fmt(p.get('exported_mu_peak'))} | "
+                     f"{_fmt(p.get('exported_control_weight'))} | {'yes' if p['pareto'] else ''} |")
+    lines += ["", "Disk margin: the exported lqg's multiloop input/output disk margin on the point's identified model; "
+              "mu: its mixed-mu upper bound over the stage's uncertainty set; R_u: its LQR control weight (n/a for "
+              "the H-infinity design)."]
     lines += ["", f"Wall time: {wall_seconds:.1f} s."]
     return "\n".join(lines) + "\n"
