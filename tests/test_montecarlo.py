@@ -531,3 +531,17 @@ def test_sweep_point_with_the_bandwidth_rule_end_to_end(tmp_path):
     assert 0.97 * lo <= pt["bandwidth_S_hz"] <= 1.03 * hi and hi > lo
     report = (tmp_path / "report.md").read_text()
     assert "--architecture lqg-bandwidth" in report and "the smallest control weight" in report
+
+
+def test_pareto_figure_keeps_a_flat_axis_readable():
+    # a parameter that leaves travel unchanged to 1e-8 (the table mass): its axis spans +-0.5 % of the value instead
+    # of 1e-6 um (unreadable ticks); an axis that spreads keeps matplotlib's limits
+    from nanosim.plots.montecarlo import _flat_limits, fig_pareto
+
+    travel = np.array([74.2767441, 74.2767452, 74.2767470])
+    lo, hi = _flat_limits(travel)
+    assert lo == pytest.approx(travel.mean() * 0.995) and hi == pytest.approx(travel.mean() * 1.005)
+    assert _flat_limits(np.array([45.8, 57.7])) is None and _flat_limits(np.array([np.nan])) is None
+    pts = [{"travel_um": t, "bandwidth_S_hz": b, "resolution_nm": 2.0} for t, b in zip(travel, (57.7, 53.2, 45.8))]
+    ax = fig_pareto(pts, [0], "travel_um", "bandwidth_S_hz", "resolution_nm").axes[0]
+    assert ax.get_xlim() == pytest.approx((lo, hi)) and ax.get_ylim()[0] < 45.8 < 57.7 < ax.get_ylim()[1]

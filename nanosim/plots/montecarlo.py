@@ -120,9 +120,26 @@ def fig_pareto(points: list, front: list, x: str, y: str, c: str, labels: dict |
     ax.set_xlabel(labels.get(x, x))
     ax.set_ylabel(labels.get(y, y))
     ax.ticklabel_format(useOffset=False)      # the values themselves, however close (no "+7.4e1" offset)
+    for v, set_lim in ((xv, ax.set_xlim), (yv, ax.set_ylim)):
+        lim = _flat_limits(v)
+        if lim is not None:
+            set_lim(*lim)
     ax.grid(alpha=0.3)
     ax.set_title("Design sweep: bandwidth vs travel vs resolution (red: Pareto-optimal, ties counted)")
     return fig
+
+
+def _flat_limits(v: np.ndarray, rel: float = 1e-3, half_width: float = 5e-3):
+    """Axis limits ``centre * (1 -+ half_width)`` for values that spread by less than ``rel`` of their size (a
+    parameter that does not move a figure: readable ticks, the points on one line), else None.
+    """
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return None
+    c = float(np.mean(v))
+    if c == 0.0 or float(np.ptp(v)) > rel * abs(c):
+        return None
+    return c - half_width * abs(c), c + half_width * abs(c)
 
 
 def fig_bench(rows: list, alphas: dict):
