@@ -185,6 +185,7 @@ def test_lqg_bandwidth_is_the_robust_rule_at_the_smallest_control_weight_it_meet
     assert d.name == "lqg-bandwidth" and p["rule"] == "bandwidth" and p["robust_rule_met"] is True
     assert p["uncertainty_vertices"]["all_stable"] and p["mu_peak"] < 1.0 and p["reference_prefilter"] is None
     assert d.tuning_rule.startswith("the robust rule below at the smallest LQR control weight")
+    assert f"R_u = {p['control_weight']:g}, Q_i" in d.tuning_rule
     levels = p["bandwidth_search"]
     assert [lv["control_weight"] for lv in levels] == list(BANDWIDTH_CONTROL_WEIGHTS[:len(levels)])
     assert levels[-1]["control_weight"] == p["control_weight"] and levels[-1]["robust_rule_met"] is True

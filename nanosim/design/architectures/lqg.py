@@ -588,6 +588,8 @@ def design_lqg(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAM
               "spectral_radius_small_signal_gain": closed_loop_spectral_radius(Pup, Ke, Ky, 0),
               "loop_delay_samples": delay_samples, "reference_prefilter": prefilter}
     rule = (GAIN_RANGE_TUNING_RULE if check_top else ROBUST_TUNING_RULE) if robust else TUNING_RULE
+    if robust and control_weight != CONTROL_WEIGHT:
+        rule = rule.replace(f"R_u = {CONTROL_WEIGHT:g}", f"R_u = {control_weight:g}")
     if prefilter is not None:
         rule += "; " + PREFILTER_RULE
     return BenchDesign("lqg", K, Gd.noutputs, rule, params)
