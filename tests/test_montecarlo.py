@@ -545,3 +545,21 @@ def test_pareto_figure_keeps_a_flat_axis_readable():
     pts = [{"travel_um": t, "bandwidth_S_hz": b, "resolution_nm": 2.0} for t, b in zip(travel, (57.7, 53.2, 45.8))]
     ax = fig_pareto(pts, [0], "travel_um", "bandwidth_S_hz", "resolution_nm").axes[0]
     assert ax.get_xlim() == pytest.approx((lo, hi)) and ax.get_ylim()[0] < 45.8 < 57.7 < ax.get_ylim()[1]
+
+
+def test_sweep_report_columns_follow_the_design_rule():
+    # an lqg rule's points show its own margin, mu and weight; the H-infinity design's its gamma (the lqg rows'
+    # gamma belongs to the H-infinity reference design, not to the exported controller)
+    from nanosim.pipeline.sweep import _report
+
+    pt = {"index": 0, "label": "target_mass_g=10", "first_mode_hz": 172.6, "travel_um": 74.28, "bandwidth_S_hz": 53.2,
+          "bandwidth_T_hz": 137.0, "resolution_nm": 2.07, "gamma": 1.207, "exported_disk_margin": 0.659,
+          "exported_mu_peak": 0.982, "exported_control_weight": 0.001, "pareto": True}
+    doc = {"parameters": [{"name": "target_mass_g", "values": [10.0]}], "points": [pt], "pareto_ties": PARETO_TIES,
+           "design": {"architecture": "lqg-bandwidth"}}
+    rows = [ln for ln in _report(doc, 1.0).splitlines() if ln.startswith("| ")]
+    assert rows[0].endswith("| disk margin | mu | R_u | Pareto |")
+    assert rows[1].endswith("| 0.659 | 0.982 | 0.001 | yes |")
+    doc["design"]["architecture"] = "hinf"
+    rows = [ln for ln in _report(doc, 1.0).splitlines() if ln.startswith("| ")]
+    assert rows[0].endswith("| gamma | Pareto |") and rows[1].endswith("| 1.207 | yes |") and "0.659" not in rows[1]

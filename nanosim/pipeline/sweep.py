@@ -385,16 +385,18 @@ def _report(doc: dict, wall_seconds: float) -> str:
              "every electromechanical effect on. Pareto front: bandwidth up, travel up, resolution sigma down; "
              "relative differences below " + ", ".join(f"{v:.3g} ({k})" for k, v in doc["pareto_ties"].items()) +
              " are ties (for the measured ones, their spread over seeds 0-4 on the nominal stage).", "",
-             f"![Pareto figure]({A.FIG_SWEEP_PARETO})", "",
-             "| # | point | first mode [Hz] | travel [um] | S bandwidth [Hz] | T bandwidth [Hz] | resolution [nm] | "
-             "disk margin | mu | R_u | Pareto |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             f"![Pareto figure]({A.FIG_SWEEP_PARETO})", ""]
+    hinf = doc["design"]["architecture"] == "hinf"
+    extra = (("gamma", "gamma"),) if hinf else (("disk margin", "exported_disk_margin"), ("mu", "exported_mu_peak"),
+                                                ("R_u", "exported_control_weight"))
+    lines += ["| # | point | first mode [Hz] | travel [um] | S bandwidth [Hz] | T bandwidth [Hz] | resolution [nm] | "
+              + "".join(f"{h} | " for h, _ in extra) + "Pareto |", "|---" * (8 + len(extra)) + "|"]
     for p in doc["points"]:
         lines.append(f"| {p['index']} | {p['label']} | {_fmt(p['first_mode_hz'])} | {_fmt(p['travel_um'])} | "
                      f"{_fmt(p['bandwidth_S_hz'])} | {_fmt(p['bandwidth_T_hz'])} | {_fmt(p['resolution_nm'])} | "
-                     f"{_fmt(p.get('exported_disk_margin'))} | {_fmt(p.get('exported_mu_peak'))} | "
-                     f"{_fmt(p.get('exported_control_weight'))} | {'yes' if p['pareto'] else ''} |")
-    lines += ["", "Disk margin: the exported lqg's multiloop input/output disk margin on the point's identified model; "
-              "mu: its mixed-mu upper bound over the stage's uncertainty set; R_u: its LQR control weight (n/a for "
-              "the H-infinity design)."]
+                     + "".join(f"{_fmt(p.get(k))} | " for _, k in extra) + f"{'yes' if p['pareto'] else ''} |")
+    lines += ["", "gamma: the H-infinity design's closed-loop H-infinity norm." if hinf else
+              "Disk margin: the exported lqg's multiloop input/output disk margin on the point's identified model; "
+              "mu: its mixed-mu upper bound over the stage's uncertainty set; R_u: its LQR control weight."]
     lines += ["", f"Wall time: {wall_seconds:.1f} s."]
     return "\n".join(lines) + "\n"
