@@ -350,9 +350,9 @@ def compare_crosscheck(twin: dict, mujoco: dict, metrics=CROSSCHECK_METRICS, rel
         rel = abs(a - b) / max(abs(b), abs(a), 1e-12) if a != b else 0.0
         q = float(res.get(m, 0.0))
         within = abs(a - b) <= q * (1 + 1e-9)
+        ok = rel <= rel_tol or within
         row = {"twin": a, "mujoco": b, "rel_diff": rel, "abs_diff": abs(a - b), "resolution": q,
-               "within_resolution": within, "ok": rel <= rel_tol or within, "ok_relative": rel <= rel_tol,
-               "ok_without_spread": rel <= rel_tol or within}
+               "within_resolution": within, "ok": ok, "ok_relative": rel <= rel_tol, "ok_without_spread": ok}
         if spread is not None and m in spread:
             lo, hi = float(spread[m]["min"]), float(spread[m]["max"])
             gap = max(lo - b, b - hi, 0.0)

@@ -157,7 +157,7 @@ def run_chunk(plan: dict, indices: list, engine: str, sink) -> list[dict]:
     experiments.load_builtin()
     ctrl = _controller_config(plan["controller"])
     spread = engine == SPREAD_ENGINE
-    factors = mc_stats.spread_gain_factors() if spread else np.ones(1)
+    factors = mc_stats.spread_gain_factors() if spread else None
     with single_threaded_blas():
         plants, records, _ = sample_plants(indices, plan["seed"], ctrl, plan.get("mjcf"), with_loop=engine == "twin")
         sink.put(len(indices))
