@@ -424,7 +424,9 @@ def _cmd_scan(args) -> int:
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
         doc = run_scan_folder(stage, controller, cfg, mjcf=args.mjcf)
-    summary = "; ".join(f"{n} {100 * m['image_error_fraction']:.2f} %" for n, m in doc["patterns"].items())
+    summary = "; ".join(f"{n} {100 * m['image_error_fraction']:.2f} %" if m["image_error_fraction"] is not None
+                        and math.isfinite(m["image_error_fraction"]) else f"{n} n/a (nothing imaged)"
+                        for n, m in doc["patterns"].items())
     print(f"scan done in {time.perf_counter() - t0:.1f} s; image error (of the height range) at "
           f"{cfg.line_rate_hz:g} Hz: {summary}; {Path(args.out) / SCAN_JSON}")
     return 0

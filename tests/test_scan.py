@@ -217,3 +217,65 @@ def test_cli_writes_the_scan_folder(ctrl, tmp_path):
     for f in ("scan.npz", "scan_path.png", "scan_image.png", "scan_error.png", "scan_line_rate.png", "scan.md",
               "manifest.json"):
         assert (out / f).is_file(), f
+    from nanosim.pipeline.report import write_report
+    md, _ = write_report(out)                         # a run's report shows the Scan section
+    text = md.read_text()
+    assert "## Scan" in text and "| raster (staircase) |" in text
+
+
+# ---------------------------------------------------------------------------------------------- viewer
+def test_live_scan_of_a_perfect_stage_forms_the_truth():
+    from nanosim.viewer.scanlive import LiveScan
+
+    scan = LiveScan("raster", 10.0, 32, 20.0, start_um=(1.0, -2.0, 0.0))
+    np.testing.assert_allclose(scan.ref_um[0], (1.0, -2.0, 0.0))          # starts where the reference was
+    while not scan.done:
+        r = scan.ref_um[scan.k:scan.k + 20]
+        scan.record(r, r)                              # sensor and table on the reference
+    assert scan.filled == 1.0
+    err = scan.image_nm() - scan.truth_nm
+    # a pixel is the mean of its trace records: within 2 % rms of the pixel-centre truth
+    assert np.sqrt(np.mean(err ** 2)) < 0.02 * (scan.hi - scan.lo)
+    rgb = scan.image_rgb()
+    assert rgb.shape == (32, 32, 3) and rgb.dtype == np.uint8 and rgb.std() > 20
+
+
+@pytest.mark.browser
+def test_scan_tab_renders_an_image_in_chromium(tmp_path):
+    from pathlib import Path
+
+    from nanosim.viewer.screenshots import CHROMIUM, CHROMIUM_ARGS, free_port, wait_until
+
+    if not Path(CHROMIUM).is_file():
+        pytest.skip(f"{CHROMIUM} not found: install Debian's chromium (apt-get install -y chromium)")
+    pw = pytest.importorskip("playwright.sync_api")
+    from PIL import Image
+
+    from nanosim.viewer.server import ViewerApp
+
+    app = ViewerApp(port=free_port(), physics="linear").start()
+    try:
+        with pw.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+            try:
+                page = browser.new_page(viewport={"width": 1000, "height": 700})
+                page.goto(f"http://127.0.0.1:{app.port}/", timeout=30000)
+                page.wait_for_selector("canvas", timeout=30000)
+                page.get_by_role("tab", name="Scan").click()
+                page.get_by_role("button", name="start scan").click()
+                assert wait_until(lambda: app.scan is not None and app.scan.done, 90.0, poll=0.1), \
+                    (app.events, None if app.scan is None else app.scan.progress)
+                assert app.scan.filled > 0.9
+                page.wait_for_timeout(1000)                     # the GUI thread sends the last image
+                img = page.locator("img").last
+                img.wait_for(timeout=10000)
+                shot = tmp_path / "scan_image.png"
+                img.screenshot(path=str(shot))
+                pix = np.asarray(Image.open(shot).convert("RGB"), float)
+                assert pix.shape[0] > 50 and pix.shape[1] > 50, pix.shape
+                assert pix.std() > 20.0, f"the scan image looks blank (pixel std {pix.std():.1f})"
+                page.screenshot(path=str(tmp_path / "viewer_scan.png"))
+            finally:
+                browser.close()
+    finally:
+        app.stop()

@@ -418,9 +418,11 @@ def form_image(xy_um: np.ndarray, height_nm: np.ndarray, size_um: float, pixels:
     ``margin`` pixels beyond the field included), then interpolated linearly on the Delaunay
     triangulation of those cell means (:func:`scipy.interpolate.griddata`); NaN outside their
     convex hull. For a height linear across a cell the cell mean is exact; the averaging bounds the
-    triangulation at one point per cell.
+    triangulation at one point per cell. Records in fewer than three cells, or all on one line,
+    give an image of NaN.
     """
     from scipy.interpolate import griddata
+    from scipy.spatial import QhullError
 
     xy = np.asarray(xy_um, float)
     h = np.asarray(height_nm, float)
@@ -433,11 +435,12 @@ def form_image(xy_um: np.ndarray, height_nm: np.ndarray, size_um: float, pixels:
     flat = ij[inside, 1] * side + ij[inside, 0]
     cnt = np.bincount(flat, minlength=side * side)
     occ = cnt > 0
-    if occ.sum() < 3:
-        raise ValueError(f"xy_um: expected records in at least 3 pixels of the field, got {int(occ.sum())}")
-    means = [np.bincount(flat, v, side * side)[occ] / cnt[occ] for v in (xy[inside, 0], xy[inside, 1], h[inside])]
     X, Y = _pixel_centres(size_um, pixels)
-    return griddata(np.column_stack(means[:2]), means[2], (X, Y), method="linear")
+    means = [np.bincount(flat, v, side * side)[occ] / cnt[occ] for v in (xy[inside, 0], xy[inside, 1], h[inside])]
+    try:
+        return griddata(np.column_stack(means[:2]), means[2], (X, Y), method="linear")
+    except (ValueError, QhullError):        # records in fewer than 3 cells, or on one line: nothing to image
+        return np.full(X.shape, np.nan)
 
 
 def coverage_mask(xy_um: np.ndarray, size_um: float, pixels: int) -> np.ndarray:

@@ -243,6 +243,10 @@ def _fmt(v, digits=3) -> str:
     return f"{v:.{digits}g}"
 
 
+def _pct(v) -> str:
+    return _fmt(None if v is None else 100 * v)
+
+
 def _limit_text(m: dict) -> str:
     st = m.get("line_rate_at_limit_status")
     if st is None:
@@ -269,10 +273,10 @@ def _blocks(doc: dict, level: int = 2) -> list:
            ("table", ["pattern", "image error rms (nm)", "of height range (%)", "position error rms / max (nm)",
                       "distortion max (nm)", "trace/retrace offset (nm)", "coverage (%)",
                       f"line rate at {lim:g} % (Hz)"],
-            [[m["label"], _fmt(m["image_error_rms_nm"]), _fmt(100 * m["image_error_fraction"]),
+            [[m["label"], _fmt(m["image_error_rms_nm"]), _pct(m["image_error_fraction"]),
               f"{_fmt(m['position_error_rms_nm'])} / {_fmt(m['position_error_max_nm'])}",
               _fmt(m["distortion_max_nm"]), _fmt(m["trace_retrace_offset_nm"]),
-              _fmt(100 * m["coverage_fraction"]), _limit_text(m)] for m in pats.values()], None)]
+              _pct(m["coverage_fraction"]), _limit_text(m)] for m in pats.values()], None)]
     return out
 
 
