@@ -455,20 +455,24 @@ class ViewerApp:
         if scan.k != self._scan_shown:
             self._scan_shown = scan.k
             rgb = scan.image_rgb()
-            self._gui_scan_image.image = rgb
+            up = max(1, 256 // scan.pixels)                 # nearest-neighbour enlargement: crisp pixels
+            self._gui_scan_image.image = np.repeat(np.repeat(rgb, up, axis=0), up, axis=1)
+            # the scene image faces the first camera (local +z along VIEW_DIR, local x its screen right,
+            # -cross(VIEW_DIR, z)), to the stage's screen left (the GUI panel is on the right); a scene
+            # image's first row is its bottom edge, so it gets the rows smallest Y first
             if self._scan_image is None:
                 extent_mm = float(self.model.stat.extent) * 1e3
                 v = VIEW_DIR / np.linalg.norm(VIEW_DIR)
                 right = np.cross(v, [0.0, 0.0, 1.0])
                 right /= np.linalg.norm(right)
-                up = np.cross(right, v)
+                up_dir = np.cross(right, v)
                 centre = np.asarray(self.model.stat.center, float) * 1e3
-                wxyz = viser.transforms.SO3.from_matrix(np.column_stack([right, up, v])).wxyz
+                wxyz = viser.transforms.SO3.from_matrix(np.column_stack([-right, up_dir, v])).wxyz
                 self._scan_image = self.server.scene.add_image(
-                    "/scan/image", rgb, render_width=0.6 * extent_mm, render_height=0.6 * extent_mm,
-                    position=tuple(centre - 0.95 * extent_mm * right), wxyz=tuple(wxyz), format="png")
+                    "/scan/image", rgb[::-1], render_width=0.6 * extent_mm, render_height=0.6 * extent_mm,
+                    position=tuple(centre + 0.9 * extent_mm * right), wxyz=tuple(wxyz), format="png")
             else:
-                self._scan_image.image = rgb
+                self._scan_image.image = rgb[::-1]
         state = "done" if scan.done else f"{100 * scan.progress:.0f} % run"
         self._gui_scan_status.value = f"{scan.pattern.label}: {state}, {100 * scan.filled:.0f} % of pixels"
 
