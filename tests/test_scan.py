@@ -279,3 +279,28 @@ def test_scan_tab_renders_an_image_in_chromium(tmp_path):
                 browser.close()
     finally:
         app.stop()
+
+
+# ---------------------------------------------------------------------------------------------- closed loop
+def test_batch_scan_equals_the_single_stage_scan(model, twin):
+    """One pattern through the batch engine gives the single-stage loop's record and image (a slow
+    decoupling integral controller ``C(z) = k_i z / (z - 1) G0^-1``, stable below the 175 Hz modes'
+    ``f / Q``)."""
+    from nanosim import constants as C
+    from nanosim.design.controller import ControllerConfig, DiscreteController
+    from nanosim.experiments.batch_loop import BatchController
+    from nanosim.plant.batch import BatchTwinStage
+    from nanosim.plant.modes import modal_analysis
+    from nanosim.plant.twin import TwinStage
+
+    G0_V = modal_analysis(model).static_gain_um_per_V / C.SENSOR_UM_PER_V      # controller V -> sensor V
+    K = 2 * np.pi * 0.5 / FS * np.linalg.inv(G0_V)                             # crossover about 0.5 Hz
+    cfg = ControllerConfig(np.eye(3), K, np.eye(3), K, 1 / FS)
+    pat = S.raster(10.0, 16, 50.0)
+    sample = S.Sample()
+    single = S.run_scan(TwinStage(twin, seed=1), DiscreteController(cfg), pat, sample)
+    (batch,) = S.run_scan_batch(BatchTwinStage(twin, [1]), BatchController(cfg, n=1), [pat], sample)
+    assert np.ptp(single.trace.table_um[:, 0]) > 0.1                  # the stage moves
+    np.testing.assert_allclose(batch.trace.table_um, single.trace.table_um, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(batch.trace.y_um, single.trace.y_um, rtol=0, atol=1e-9)
+    assert batch.image.rms_error_nm == pytest.approx(single.image.rms_error_nm, rel=1e-9)
