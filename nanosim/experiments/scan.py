@@ -51,7 +51,7 @@ from nanosim.experiments.loop import FS, INTERPOLATION_S, LoopTrace, interpolate
 from nanosim.ramps import raised_cosine
 
 __all__ = ["PATTERNS", "PLACEMENTS", "ScanPattern", "Sample", "ScanImage", "ScanResult", "raster", "spiral",
-           "lissajous", "rosette", "scan_pattern", "pattern_reference", "form_image", "analyse_scan",
+           "lissajous", "rosette", "scan_pattern", "pattern_reference", "form_image", "raster_image", "analyse_scan",
            "trace_retrace_offset_um", "run_scan", "run_scan_batch", "line_rate_at_limit"]
 
 PATTERNS = ("raster", "spiral", "lissajous", "rosette")
@@ -515,7 +515,8 @@ class ScanResult:
     mask : ndarray of bool (pixels, pixels)
         Pixels the pattern covers (the image metrics are over these).
     image : ScanImage
-        From every imaged record (raster: the trace lines).
+        From every imaged record (:func:`form_image`); raster: the trace lines, row by row
+        (:func:`raster_image`).
     retrace : ScanImage or None
         Raster: from the retrace lines.
     trace_retrace_offset_um : float
@@ -581,6 +582,44 @@ def _upsampled(a: np.ndarray, k: int) -> np.ndarray:
     return np.concatenate([out.reshape(-1, a.shape[1]), a[-1:]])
 
 
+def raster_image(x_um: np.ndarray, height_nm: np.ndarray, line: np.ndarray, keep: np.ndarray, size_um: float,
+                 pixels: int) -> np.ndarray:
+    """A raster's image as the instrument builds it: row ``j`` is line ``j``'s records (``keep``: trace or
+    retrace) interpolated linearly in their X at the pixel centres; NaN beyond a line's records.
+
+    Parameters
+    ----------
+    x_um : ndarray (M,)
+        Placed X of every record, um.
+    height_nm : ndarray (M,)
+        Height seen by the tip, nm.
+    line : ndarray of int (M,)
+        Line of each record, ``0 .. pixels - 1``.
+    keep : ndarray of bool (M,)
+        Records of the image (the trace or the retrace).
+    """
+    c = (np.arange(pixels) + 0.5) * size_um / pixels
+    img = np.full((pixels, pixels), np.nan)
+    sel = keep & (line >= 0) & (line < pixels)
+    x, h, ln = x_um[sel], height_nm[sel], line[sel]
+    order = np.lexsort((x, ln))
+    x, h, ln = x[order], h[order], ln[order]
+    bounds = np.searchsorted(ln, np.arange(pixels + 1))
+    for j in range(pixels):
+        a, b = bounds[j], bounds[j + 1]
+        if b - a >= 2:
+            img[j] = np.interp(c, x[a:b], h[a:b], left=np.nan, right=np.nan)
+    return img
+
+
+def _summary(img, truth, mask, rng_nm) -> ScanImage:
+    err = img - truth
+    e = err[mask & np.isfinite(err)]
+    rms = float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
+    mx = float(np.abs(e).max()) if e.size else float("nan")
+    return ScanImage(img, err, rms, mx, rms / rng_nm if rng_nm > 0 else float("nan"))
+
+
 def _image(xy, h, keep, truth, mask, size_um, pixels, rng_nm) -> ScanImage:
     img = form_image(xy[keep], h[keep], size_um, pixels)
     err = img - truth
@@ -613,8 +652,9 @@ def analyse_scan(pattern: ScanPattern, trace: LoopTrace, sample: Sample, placeme
     The tip sees the height at the table's true position; the image puts it at the commanded
     position (``placement = "reference"``) or the sensor reading (``"sensor"``). Records are
     interpolated linearly in time between loop samples (a detector sampled faster than the loop) so that
-    neighbouring records are at most half a pixel apart, then resampled onto the pixel grid
-    (:func:`form_image`).
+    neighbouring records are at most half a pixel apart, then resampled onto the pixel grid: a raster row
+    by row (:func:`raster_image`: line ``j`` is row ``j``, its records placed by their X), the other
+    patterns in two dimensions (:func:`form_image`).
     """
     _choice("placement", placement, PLACEMENTS)
     if len(trace.t_s) != len(pattern.t_s):
@@ -632,12 +672,15 @@ def analyse_scan(pattern: ScanPattern, trace: LoopTrace, sample: Sample, placeme
     truth = sample.truth(size, px)
     mask = coverage_mask(ref_u, size, px)
     rng_nm = float(np.ptp(truth[mask])) if mask.any() else 0.0
-    image = _image(placed_u, h, direction > 0, truth, mask, size, px, rng_nm)
     retrace = None
     offset = float("nan")
     if pattern.name == "raster":
-        retrace = _image(placed_u, h, direction < 0, truth, mask, size, px, rng_nm)
+        line = np.repeat(np.floor(pattern.t_s[sel] * pattern.line_rate_hz).astype(int), k)[:len(placed_u)]
+        image = _summary(raster_image(placed_u[:, 0], h, line, direction > 0, size, px), truth, mask, rng_nm)
+        retrace = _summary(raster_image(placed_u[:, 0], h, line, direction < 0, size, px), truth, mask, rng_nm)
         offset = trace_retrace_offset_um(image.image_nm, retrace.image_nm, pattern.pitch_um)
+    else:
+        image = _image(placed_u, h, direction > 0, truth, mask, size, px, rng_nm)
     e = true_u - placed_u
     rms_map, max_map, dist = _pixel_stats(placed_u, e, size, px)
     mag = 1e3 * np.hypot(e[:, 0], e[:, 1])
