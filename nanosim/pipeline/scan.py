@@ -219,7 +219,8 @@ def _write(out: Path, cfg, doc, results, sweep) -> None:
         if res.retrace is not None:
             arrays[f"{n}_retrace_image_nm"] = res.retrace.image_nm
     write_npz(out / SCAN_NPZ, **arrays)
-    paths = [(r.pattern.label, *P.scan_path_response(r.trace.ref_um, r.trace.table_um, r.pattern.imaged))
+    paths = [(r.pattern.label, *P.scan_path_response(r.trace.ref_um, r.trace.table_um, r.pattern.imaged,
+                                                       cfg.size_um))
              for r in results]
     save_figure(P.scan_path_plot(paths, cfg.size_um), out / SCAN_FIGURES["path"])
     imgs = [(r.pattern.label, r.image.image_nm,

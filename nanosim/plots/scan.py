@@ -10,36 +10,63 @@ import numpy as np
 
 from nanosim.plots.style import new_figure
 
-__all__ = ["scan_path_response", "scan_path_plot", "scan_image_plot", "scan_error_response", "scan_error_plot",
-           "line_rate_plot"]
+__all__ = ["zoom_window", "scan_path_response", "scan_path_plot", "scan_image_plot", "scan_error_response",
+           "scan_error_plot", "line_rate_plot"]
 
 
-def scan_path_response(ref_um: np.ndarray, table_um: np.ndarray, imaged: np.ndarray, max_points: int = 20000):
-    """The commanded and the true XY path of the imaged samples, decimated to at most ``max_points``.
+def zoom_window(size_um: float) -> tuple:
+    """The path figure's zoom: ``(x0, x1, y0, y1)`` um, a tenth of the field wide at ``(0.85, 0.5) size_um``."""
+    w = size_um / 10
+    return (0.85 * size_um - w / 2, 0.85 * size_um + w / 2, 0.5 * size_um - w / 2, 0.5 * size_um + w / 2)
+
+
+def scan_path_response(ref_um: np.ndarray, table_um: np.ndarray, imaged: np.ndarray, size_um: float,
+                       max_points: int = 20000):
+    """The commanded and the true XY path of the imaged samples: decimated to at most ``max_points``, and
+    whole inside :func:`zoom_window` (NaN elsewhere, so that the zoom draws no chords).
 
     Returns
     -------
-    ref_xy, true_xy : ndarray (M, 2), um
+    ref_xy, true_xy, ref_zoom, true_zoom : ndarray (M, 2), um
     """
     sel = np.flatnonzero(np.asarray(imaged, bool))
+    ref, true = np.asarray(ref_um)[sel, :2], np.asarray(table_um)[sel, :2]
     step = max(1, int(np.ceil(len(sel) / max_points)))
-    sel = sel[::step]
-    return np.asarray(ref_um)[sel, :2], np.asarray(table_um)[sel, :2]
+    x0, x1, y0, y1 = zoom_window(size_um)
+    pad = (x1 - x0) / 2
+    def windowed(xy):
+        out = xy.copy()
+        out[~((xy[:, 0] > x0 - pad) & (xy[:, 0] < x1 + pad) & (xy[:, 1] > y0 - pad) & (xy[:, 1] < y1 + pad))] = np.nan
+        return out
+
+    return ref[::step], true[::step], windowed(ref), windowed(true)
 
 
 def scan_path_plot(paths, size_um: float):
-    """``paths``: list of ``(label, ref_xy, true_xy)``; one panel per pattern, the field's square drawn."""
+    """``paths``: list of ``(label, ref_xy, true_xy, ref_zoom, true_zoom)``; per pattern the whole path
+    (the field's square dashed, the zoom's window solid) and below it the zoom.
+    """
     n = len(paths)
-    fig, ax = new_figure(1, n, size=(3.6 * n, 3.8))
-    for a, (label, ref, true) in zip(ax[0], paths):
+    fig, ax = new_figure(2, n, size=(3.6 * n, 7.4))
+    x0, x1, y0, y1 = zoom_window(size_um)
+    for j, (label, ref, true, rz, tz) in enumerate(paths):
+        a, z = ax[0, j], ax[1, j]
         a.plot(ref[:, 0], ref[:, 1], lw=0.3, color="0.6", label="command")
         a.plot(true[:, 0], true[:, 1], lw=0.3, color="tab:red", label="table (true)")
         a.plot([0, size_um, size_um, 0, 0], [0, 0, size_um, size_um, 0], "k--", lw=0.8)
+        a.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], "k-", lw=1.0)
         a.set_aspect("equal")
         a.set_title(label, fontsize=9)
-        a.set_xlabel("X (um)")
+        z.plot(rz[:, 0], rz[:, 1], lw=0.8, color="0.5", label="command")
+        z.plot(tz[:, 0], tz[:, 1], lw=0.8, color="tab:red", label="table (true)")
+        z.set_xlim(x0, x1)
+        z.set_ylim(y0, y1)
+        z.set_aspect("equal")
+        z.set_title("zoom (solid square above)", fontsize=8)
+        z.set_xlabel("X (um)")
     ax[0, 0].set_ylabel("Y (um)")
-    ax[0, 0].legend(fontsize=7, loc="upper right")
+    ax[1, 0].set_ylabel("Y (um)")
+    ax[1, 0].legend(fontsize=7, loc="upper right")
     return fig
 
 
