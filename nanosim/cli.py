@@ -415,7 +415,7 @@ def _cmd_scan(args) -> int:
                      slow_axis=args.slow_axis, spiral_velocity=args.spiral_velocity,
                      freqs_hz=tuple(args.freqs) if args.freqs else None, placement=args.placement,
                      twin=args.twin, seed=args.seed, limit_fraction=args.limit / 100.0,
-                     sweep_hz=tuple(args.sweep) if args.sweep else ())
+                     sweep_hz=tuple(args.sweep) if args.sweep else (), sweep_mujoco=args.sweep_mujoco)
     if args.freqs and not set(patterns) & {"lissajous", "rosette"}:
         raise ValueError("--freqs: applies to the lissajous and rosette patterns only")
     cfg.check()                                              # every option, before any work
@@ -606,7 +606,10 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--limit", type=_float_in(0.0, 100.0, lo_open=True), default=100 * sc_default.limit_fraction,
                     metavar="PERCENT", help="image error limit, %% of the height range (default %(default)g)")
     sc.add_argument("--sweep", nargs="*", type=_float_in(0.0, 1e4, lo_open=True), default=list(DEFAULT_SWEEP_HZ),
-                    metavar="HZ", help="line rates of the sweep (default %(default)s; none: no sweep)")
+                    metavar="HZ", help="line rates of the sweep (default %(default)s; --sweep alone: no sweep)")
+    sc.add_argument("--sweep-mujoco", action="store_true",
+                    help="run the sweep on MuJoCo too (default: on the linear twin, compiled; on MuJoCo it takes "
+                         "hours)")
     sc.add_argument("--mjcf", default=None, type=_file)
     sc.set_defaults(func=_cmd_scan)
     from nanosim.viewer import add_view_arguments, run_view

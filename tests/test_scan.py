@@ -211,6 +211,7 @@ def test_cli_writes_the_scan_folder(ctrl, tmp_path):
                  "--line-rate", "50", "--sweep", "50", "100"]) == 0
     doc = json.loads((out / "scan.json").read_text())
     assert set(doc["patterns"]) == set(S.PATTERNS) and doc["units"]["nm"] == "nanometres"
+    assert doc["sweep_plant"] == doc["plant"] == "linear twin (same electromechanics)"
     for m in doc["patterns"].values():
         assert [r["line_rate_hz"] for r in m["sweep"]] == [50.0, 100.0]
         assert m["line_rate_at_limit_status"] == "above_all"       # the stage never moves: error everywhere
