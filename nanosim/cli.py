@@ -405,6 +405,32 @@ def _cmd_compare(args) -> int:
     return 0
 
 
+
+def _cmd_scan(args) -> int:
+    from nanosim.pipeline.runfolder import staged_run
+    from nanosim.pipeline.scan import SCAN_JSON, ScanConfig, run_scan_folder
+
+    patterns = tuple(dict.fromkeys(p.strip() for p in args.pattern.split(",")))
+    cfg = ScanConfig(patterns=patterns, size_um=args.size, pixels=args.pixels, line_rate_hz=args.line_rate,
+                     slow_axis=args.slow_axis, spiral_velocity=args.spiral_velocity,
+                     freqs_hz=tuple(args.freqs) if args.freqs else None, placement=args.placement,
+                     twin=args.twin, seed=args.seed, limit_fraction=args.limit / 100.0,
+                     sweep_hz=tuple(args.sweep) if args.sweep else (), sweep_mujoco=args.sweep_mujoco)
+    if args.freqs and not set(patterns) & {"lissajous", "rosette"}:
+        raise ValueError("--freqs: applies to the lissajous and rosette patterns only")
+    cfg.check()                                              # every option, before any work
+    controller = _check_controller(args.controller)
+    _check_mjcf(args)
+    t0 = time.perf_counter()
+    with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
+        doc = run_scan_folder(stage, controller, cfg, mjcf=args.mjcf)
+    summary = "; ".join(f"{n} {100 * m['image_error_fraction']:.2f} %" if m["image_error_fraction"] is not None
+                        and math.isfinite(m["image_error_fraction"]) else f"{n} n/a (nothing imaged)"
+                        for n, m in doc["patterns"].items())
+    print(f"scan done in {time.perf_counter() - t0:.1f} s; image error (of the height range) at "
+          f"{cfg.line_rate_hz:g} Hz: {summary}; {Path(args.out) / SCAN_JSON}")
+    return 0
+
 # --- parser --------------------------------------------------------------------------------
 def _add_design_arguments(parser) -> None:
     parser.add_argument("--weights", default=None, type=_file,
@@ -550,6 +576,42 @@ def build_parser() -> argparse.ArgumentParser:
                     help="skip robustness.json (the mu analysis takes ~10 s per controller)")
     cp.add_argument("--mjcf", default=None, type=_file)
     cp.set_defaults(func=_cmd_compare)
+    from nanosim.pipeline.scan import DEFAULT_SWEEP_HZ, ScanConfig
+    sc_default = ScanConfig()
+    sc = sub.add_parser("scan", help="image a synthetic sample with raster, spiral, Lissajous or rosette scans in "
+                                     "closed loop: image error, distortion, the line rate at an error limit")
+    sc.add_argument("--pattern", default=",".join(sc_default.patterns), metavar="NAME[,NAME]",
+                    help="raster, spiral, lissajous, rosette, or a comma list (default: all four)")
+    sc.add_argument("--controller", required=True, type=_file, help="controller.npz from 'nanosim design'")
+    sc.add_argument("--out", required=True, type=out, help="folder for scan.json, scan.npz, figures and scan.md "
+                                                           "(a run folder: added to it)")
+    sc.add_argument("--twin", action="store_true", help="run against the linear twin (same electromechanics)")
+    sc.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
+    sc.add_argument("--size", type=_float_in(0.0, 1e3, lo_open=True), default=sc_default.size_um, metavar="UM",
+                    help=f"side of the square field, um (default {sc_default.size_um:g})")
+    sc.add_argument("--pixels", type=_int_at_least(8), default=sc_default.pixels,
+                    help=f"pixels per side (default {sc_default.pixels})")
+    sc.add_argument("--line-rate", type=_float_in(0.0, 1e4, lo_open=True), default=sc_default.line_rate_hz,
+                    metavar="HZ", help=f"lines per second; every pattern's frame lasts pixels / line rate "
+                                       f"(default {sc_default.line_rate_hz:g})")
+    sc.add_argument("--slow-axis", choices=("staircase", "ramp"), default=sc_default.slow_axis,
+                    help="raster slow axis (default %(default)s)")
+    sc.add_argument("--spiral-velocity", choices=("linear", "angular"), default=sc_default.spiral_velocity,
+                    help="spiral at constant linear or angular velocity (default %(default)s)")
+    sc.add_argument("--freqs", nargs=2, type=_float_in(0.0, 1e5, lo_open=True), default=None, metavar="HZ",
+                    help="Lissajous f_x f_y or rosette f_1 f_2 (default: from the line rate, closing in one frame)")
+    sc.add_argument("--placement", choices=("sensor", "reference"), default=sc_default.placement,
+                    help="the image puts each record at the sensor reading or at the commanded position "
+                         "(default %(default)s)")
+    sc.add_argument("--limit", type=_float_in(0.0, 100.0, lo_open=True), default=100 * sc_default.limit_fraction,
+                    metavar="PERCENT", help="image error limit, %% of the height range (default %(default)g)")
+    sc.add_argument("--sweep", nargs="*", type=_float_in(0.0, 1e4, lo_open=True), default=list(DEFAULT_SWEEP_HZ),
+                    metavar="HZ", help="line rates of the sweep (default %(default)s; --sweep alone: no sweep)")
+    sc.add_argument("--sweep-mujoco", action="store_true",
+                    help="run the sweep on MuJoCo too (default: on the linear twin, compiled; on MuJoCo it takes "
+                         "hours)")
+    sc.add_argument("--mjcf", default=None, type=_file)
+    sc.set_defaults(func=_cmd_scan)
     from nanosim.viewer import add_view_arguments, run_view
     v = sub.add_parser("view", help="browser 3D view (viser)")
     add_view_arguments(v)

@@ -411,6 +411,7 @@ def _blocks(run: Path):
                 ("table", ["quantity", "MuJoCo", "linear twin", "difference"],
                  [[lab, _fmt(a), _fmt(b), _diff(b, a)] for lab, a, b in twin_rows], None)]
     out += _robustness_blocks(run)
+    out += _scan_blocks(run)
     out += _stage_v2_blocks(run)
     out.append(("h", 2, "Figures"))
     out += [("fig", title, rel) for title, rel in _figures(run)]
@@ -494,6 +495,12 @@ def _gain_ranges_on_plants(plants: dict) -> str:
         if rng:
             parts.append(f"{p.get('plant', k)}: x{_fmt(rng[0])}-{_fmt(rng[1])} of its own gain")
     return "; ".join(parts) or "on every plant as given"
+
+
+def _scan_blocks(run: Path) -> list:
+    """The "Scan" section from ``scan.json`` (``nanosim scan --out`` this run, or its ``scan/`` folder)."""
+    from nanosim.pipeline.scan import report_blocks
+    return report_blocks(run) or report_blocks(run / "scan")
 
 
 def _stage_v2_blocks(run: Path) -> list:

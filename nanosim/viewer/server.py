@@ -22,6 +22,7 @@ from nanosim.viewer import scene as sc
 from nanosim.viewer.bench import OPEN_LOOP, add_bench_gui, apply_bench_choice, bench_setup
 from nanosim.viewer.exaggerate import Exaggerator, table_displacement_m
 from nanosim.viewer.labels import VIEW_DIR, label_positions
+from nanosim.viewer.scanlive import LiveScan
 from nanosim.viewer.sim import LiveSim, load_controller
 from nanosim.viewer.waveforms import PRESETS, Waveform
 
@@ -37,6 +38,8 @@ PHYSICS_CHOICES = ("auto", "mujoco", "linear")
 PHYSICS_LABELS = ("auto", "MuJoCo (nonlinear)", "linearized MuJoCo (fast)")
 AUTO_WINDOW_S = 2.0    # auto: measure MuJoCo's real-time factor over this much running
 AUTO_MIN_RTF = 0.95    # ... and keep it if it reaches this
+SCAN_PATTERNS = ("raster", "spiral", "lissajous", "rosette")
+SCAN_PIXELS = ("32", "64", "128")
 
 
 class ViewerApp:
@@ -76,6 +79,9 @@ class ViewerApp:
         self.mode_index = -1          # -1: live simulation, else index into self.modes
         self.mode_amp_um = 0.2
         self._wave_t0 = 0.0
+        self.scan: LiveScan | None = None       # the scan being run (physics thread), shown by the GUI thread
+        self._scan_shown = -1
+        self._scan_image = None
         self._pending = collections.deque()
         self._lock = threading.Lock()
         self._snap = self.sim.snapshot()
@@ -110,6 +116,18 @@ class ViewerApp:
 
     def reset(self) -> None:
         self._pending.append("reset")
+
+    def start_scan(self, pattern: str = "raster", pixels: int = 64, line_rate_hz: float = 10.0,
+                   size_um: float = 10.0) -> None:
+        """Run ``pattern`` (centred on home) from the current reference; its image forms in the Scan tab."""
+        LiveScan(pattern, size_um, pixels, line_rate_hz)          # errors here, in the caller's thread
+        self._pending.append(("scan", (pattern, int(pixels), float(line_rate_hz), float(size_um))))
+        self.events.append(f"scan={pattern}")
+
+    def stop_scan(self) -> None:
+        """Back to the Live tab's reference (the image stays until the next scan)."""
+        self._pending.append(("scan", None))
+        self.events.append("scan stopped")
 
     def select_bench_controller(self, name: str) -> None:
         """Switch to the bench controller ``name`` (or :data:`~nanosim.viewer.bench.OPEN_LOOP`) without a kick."""
@@ -380,6 +398,9 @@ class ViewerApp:
                      uplot.Series(label="Z (nm)", stroke="#ff7f0e", width=1.5)),
                     title="tracking error (nm)", aspect=2.2)
 
+        with tabs.add_tab("Scan"):
+            self._build_scan_gui(gui)
+
         with tabs.add_tab("Modes"):
             labels = ["(live simulation)"] + [
                 f"{i + 1}: {m.freq_hz:.1f} Hz  {m.axis}  zeta {100 * m.damping_ratio:.2f}%"
@@ -403,6 +424,58 @@ class ViewerApp:
                 self.mode_amp_um = float(mamp.value)
             self._gui_mode = sel
 
+    def _build_scan_gui(self, gui) -> None:
+        pat = gui.add_dropdown("pattern", SCAN_PATTERNS, initial_value="raster")
+        px = gui.add_dropdown("pixels", SCAN_PIXELS, initial_value="64")
+        size = gui.add_slider("field (um)", min=1.0, max=30.0, step=0.5, initial_value=10.0)
+        rate = gui.add_slider("line rate (Hz)", min=1.0, max=50.0, step=0.5, initial_value=10.0,
+                              hint="lines per second; every pattern's frame lasts pixels / line rate")
+        start = gui.add_button("start scan")
+        stop = gui.add_button("stop scan")
+        self._gui_scan_status = gui.add_text("scan", "idle", disabled=True)
+        gui.add_markdown("The sample (a grating of square pillars and a rough surface) is seen at the table's "
+                         "true position and placed at the sensor reading; raster: trace lines. The image also "
+                         "stands beside the stage.")
+        blank = np.full((64, 64, 3), 40, np.uint8)
+        self._gui_scan_image = gui.add_image(blank, label="image", format="png")
+
+        @start.on_click
+        def _(_e):
+            self.start_scan(pat.value, int(px.value), float(rate.value), float(size.value))
+
+        @stop.on_click
+        def _(_e):
+            self.stop_scan()
+
+    def _show_scan(self) -> None:
+        """Send the forming image (GUI panel and the scene beside the stage) when it has changed."""
+        scan = self.scan
+        if scan is None:
+            return
+        if scan.k != self._scan_shown:
+            self._scan_shown = scan.k
+            rgb = scan.image_rgb()
+            up = max(1, 256 // scan.pixels)                 # nearest-neighbour enlargement: crisp pixels
+            self._gui_scan_image.image = np.repeat(np.repeat(rgb, up, axis=0), up, axis=1)
+            # the scene image faces the first camera (local +z along VIEW_DIR, local x its screen right,
+            # -cross(VIEW_DIR, z)), to the stage's screen left (the GUI panel is on the right); a scene
+            # image's first row is its bottom edge, so it gets the rows smallest Y first
+            if self._scan_image is None:
+                extent_mm = float(self.model.stat.extent) * 1e3
+                v = VIEW_DIR / np.linalg.norm(VIEW_DIR)
+                right = np.cross(v, [0.0, 0.0, 1.0])
+                right /= np.linalg.norm(right)
+                up_dir = np.cross(right, v)
+                centre = np.asarray(self.model.stat.center, float) * 1e3
+                wxyz = viser.transforms.SO3.from_matrix(np.column_stack([-right, up_dir, v])).wxyz
+                self._scan_image = self.server.scene.add_image(
+                    "/scan/image", rgb[::-1], render_width=0.6 * extent_mm, render_height=0.6 * extent_mm,
+                    position=tuple(centre + 0.9 * extent_mm * right), wxyz=tuple(wxyz), format="png")
+            else:
+                self._scan_image.image = rgb[::-1]
+        state = "done" if scan.done else f"{100 * scan.progress:.0f} % run"
+        self._gui_scan_status.value = f"{scan.pattern.label}: {state}, {100 * scan.filled:.0f} % of pixels"
+
     def _update_gui(self) -> None:
         with self._lock:
             snap = self._snap
@@ -422,6 +495,7 @@ class ViewerApp:
                 p.data = (t, h[:, 1 + a], h[:, 4 + a])
             err = 1e3 * (h[:, 1:4] - h[:, 4:7])
             self._plot_err.data = (t, err[:, 0], err[:, 1], err[:, 2])
+        self._show_scan()
 
     # ---------------------------------------------------------------- threads
     def _apply_pending(self) -> None:
@@ -438,6 +512,13 @@ class ViewerApp:
             elif item[0] == "realistic":
                 self.sim.set_realistic(item[1])
                 self._pace_reset = True
+            elif item[0] == "scan":
+                if item[1] is None:
+                    self.scan = None
+                else:
+                    pattern, px, rate, size = item[1]
+                    self.scan = LiveScan(pattern, size, px, rate, start_um=self.sim.ref_um)
+                    self._scan_shown = -1
             elif item[0] == "bench":
                 apply_bench_choice(self.sim, self.bench, item[1])
             elif item[0] == "physics":
@@ -507,14 +588,25 @@ class ViewerApp:
                     continue
                 if lag > 0.25:        # cannot keep up: run flat out, drop the debt
                     wall0, sim0 = now, self.sim.time_s
-            t = self.sim.time_s + dt * np.arange(1, CHUNK + 1)
-            refs = self.wave(t - self._wave_t0) + self.offset_um
+            scan = self.scan
+            if scan is not None:
+                k = scan.k
+                refs = scan.ref_um[np.minimum(np.arange(k, k + CHUNK), len(scan.ref_um) - 1)]
+                scan_meas, scan_table = np.empty((CHUNK, 3)), np.empty((CHUNK, 3))
+            else:
+                t = self.sim.time_s + dt * np.arange(1, CHUNK + 1)
+                refs = self.wave(t - self._wave_t0) + self.offset_um
             rows = []
-            for r in refs:
+            for i, r in enumerate(refs):
                 meas = self.sim.step(r)
+                if scan is not None:
+                    scan_meas[i] = meas
+                    scan_table[i] = self.sim.table_from_home_um
                 step_count += 1
                 if step_count % HIST_DECIM == 0:
                     rows.append((self.sim.time_s, *r, *meas))
+            if scan is not None:
+                scan.record(scan_meas, scan_table)
             snap = self.sim.snapshot()
             with self._lock:
                 for row in rows:

@@ -144,6 +144,11 @@ class LiveSim:
         return (self.y_V - self.y_home_V) * C.SENSOR_UM_PER_V
 
     @property
+    def table_from_home_um(self) -> np.ndarray:
+        """The table's true (noise-free) position, um from home (the reading at home is its zero)."""
+        return np.asarray(self.stage.table_um, float) - self.y_home_V * C.SENSOR_UM_PER_V
+
+    @property
     def qpos(self) -> np.ndarray:
         if self.physics == "linear":
             return self.stage.qpos
