@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from nanosim.pipeline import mc_stats
 from nanosim.pipeline.config import MonteCarloConfig
@@ -88,9 +89,16 @@ def test_v1_stage_maps_onto_its_lumped_springs():
 def test_wilson_interval_and_yield_table():
     lo, hi = mc_stats.wilson_interval(0, 10)
     assert lo == 0.0 and hi == pytest.approx(0.2775, abs=1e-4)       # textbook value, z = 1.96
+    # the closed form at the exact quantile z = 1.95996...
+    z = stats.norm.ppf(0.975)
+    p, n = 0.8, 10
+    d = 1 + z * z / n
+    c, h = (p + z * z / (2 * n)) / d, z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    assert mc_stats.wilson_interval(8, 10) == pytest.approx((c - h, c + h), rel=1e-12)
+    assert mc_stats.wilson_interval(9, 10, confidence=0.99)[0] < mc_stats.wilson_interval(9, 10)[0]
     lo, hi = mc_stats.wilson_interval(8, 10)
     assert (lo, hi) == pytest.approx((0.4902, 0.9433), abs=1e-4)
-    # every sample passing: the upper end is 1 exactly (the formula alone gives 0.9999999999999999 at n = 100)
+    # every sample passing: the upper end is 1 exactly
     for n in (2, 100, 200, 1000):
         assert mc_stats.wilson_interval(n, n)[1] == 1.0 and mc_stats.wilson_interval(0, n)[0] == 0.0
     spec = mc_stats.check_spec({"limits": [{"metric": "bandwidth_S_hz", "min": 28, "unit": "Hz"},
