@@ -312,7 +312,7 @@ def test_readme_pid_and_a_bench_design_run_through_nanosim_compare(tmp_path, twi
     assert doc["controllers"]["my_pid:make"]["robustness"]["mu_peak"] is None          # an object: no matrices
     assert doc["controllers"]["paper"]["robustness"]["multiloop_disk_margin"] > 0.4
     # the twin analysed as nanosim design analyses it: the loop as run, with the bench's amplifier and gauge
-    # filters (until session 17 compare left them out: the exported lqg's twin margin read 0.225, not 0.304).
+    # filters (without them the exported lqg's twin margin reads lower).
     # The paper's loop (this older test model's) is at the edge of stability on the twin, spectral radius 1.00005
     # (alpha 0 either way), so peak sigma(S_o) tells the two apart: 163 as run, 30 without the filters.
     from nanosim.design.robustness import LoopPlant
