@@ -2,7 +2,7 @@
 
 On this stage the closed-loop resolution is set by the DAC noise, an input disturbance that rings the
 lightly damped first XY pair. Minimising the output variance for a known input-noise spectrum is the
-linear-quadratic-Gaussian problem (Kwakernaak and Sivan, 1972), so this design solves it directly on the
+linear-quadratic-Gaussian problem [1]_, so this design solves it directly on the
 identified model as the loop runs it::
 
     plant       x+ = A x + B (u + w + d),  y = C x + v
@@ -15,7 +15,7 @@ identified model as the loop runs it::
   plant input; ``v``: gauge noise per sample (:func:`gauge_noise_per_sample_V`, the gauge's white
   density over the Nyquist band) times a measurement inflation. The inflation trades noise optimality
   for robustness: a less trusting estimator has a smaller high-frequency gain (the loop-transfer-recovery
-  trade-off, Doyle and Stein, 1979).
+  trade-off [2]_).
 * ``d``: the piezo's hysteresis and creep act as an input disturbance. A first-order process with a
   :data:`DISTURBANCE_CORNER_HZ` corner in the estimator gives a disturbance observer, and the command
   cancels the estimate (``- d_k|k``): input-side integral action against the hysteresis of a ramp. Its
@@ -26,8 +26,8 @@ identified model as the loop runs it::
 * LQR cost ``sum y'y + Q_I xi'xi + R_U u'u`` in sensor and controller volts
   (:data:`INTEGRAL_WEIGHT`, :data:`CONTROL_WEIGHT`).
 
-The estimator is the current (a posteriori) form (Franklin, Powell and Workman, *Digital Control of
-Dynamic Systems*, 1998, Sec. 8.2), so the command of sample ``k`` uses the reading of sample ``k``.
+The estimator is the current (a posteriori) form ([3]_, Sec. 8.2), so the command of sample ``k`` uses
+the reading of sample ``k``.
 
 Tuning rules
 ------------
@@ -45,11 +45,11 @@ the set. Each member of :data:`ROBUST_GAIN_FRACTIONS` x :data:`ROBUST_LADDER` (f
 (:func:`predicted_noise_sigma_nm`), the first is taken that
 
 1. has a multiloop disk margin of at least :data:`ROBUST_MIN_DISK_MARGIN` on the identified model
-   (Seiler, Packard and Gahinet, 2020),
+   [4]_,
 2. is stable at every vertex and sample of :data:`~nanosim.design.uncertainty.STAGE_UNCERTAINTY`
    (:func:`~nanosim.design.architectures.common.uncertainty_vertex_check`), and
 3. has a mixed real/complex mu upper bound below :data:`ROBUST_MU_MAX` over it
-   (:func:`~nanosim.design.parametric.robust_stability_mixed_mu`; Young, Newlin and Doyle, 1995), as
+   (:func:`~nanosim.design.parametric.robust_stability_mixed_mu`, [5]_), as
    ``robustness.json`` reports it.
 
 At most :data:`ROBUST_MAX_MU_CHECKS` mu analyses are run; if none passes, the checked member with the least
