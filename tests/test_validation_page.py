@@ -65,6 +65,24 @@ def test_page_reads_every_number_from_the_runs(tool, tmp_path):
     assert "| 2 um step settling (2 %) | 11 ms | 8 ms | 9 ms |" in head
 
 
+def test_scorecard_section_reads_the_acceptance_of_every_controller(tool, tmp_path):
+    from nanosim.pipeline.scorecard import run_acceptance
+
+    crit = {r["key"]: r for r in run_acceptance({"bandwidth_S_hz": 36.0, "step_2um": {"settling_ms": 12.0}}, None)}
+    acc = {k: {"criterion": r["criterion"], "worst": r["value"], "pass": r["pass"]} for k, r in crit.items()}
+    doc = {"controllers": {"lqg": {"acceptance": acc, "acceptance_met": sum(bool(a["pass"]) for a in acc.values()),
+                                   "acceptance_total": len(acc)}},
+           "seeds": [0], "plant": "linear twin", "acceptance": {k: a["criterion"] for k, a in acc.items()},
+           "default": "lqg", "default_reason": "the only bench design"}
+    (tmp_path / "bench").mkdir()
+    (tmp_path / "bench" / "scorecard.json").write_text(json.dumps(doc))
+    text = "\n".join(tool.scorecard(tmp_path / "bench"))
+    row = [ln for ln in text.splitlines() if ln.startswith("| `lqg` |")][0]
+    assert f"| {doc['controllers']['lqg']['acceptance_met']} / {len(acc)} |" in row
+    assert "36 ✓" in row and "12 ✗" in row
+    assert "Default by the rule: `lqg`" in text
+
+
 def test_folders_without_runs_are_refused(tool, tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(SystemExit, match="--runs: expected folders of nanosim pipeline"):
