@@ -33,7 +33,7 @@ from .regression import observability_powers
 __all__ = ["SharedPoles", "refine_shared_poles", "shared_pole_groups", "SHARED_POLE_TOL", "LIGHT_DAMPING"]
 
 # Two columns' poles are one mode when their frequencies differ by at most this fraction: the
-# per-column estimates of one mode agree within 1 % (acceptance of issue 13), while the closest
+# per-column estimates of one mode agree within 1 % (the bench specification's tolerance), while the closest
 # distinct modes of the stage are 1.5 % (175.5/178.2 Hz) and 2.0 % (462.7/472.0 Hz) apart.
 SHARED_POLE_TOL = 0.01
 # a complex pair with a damping ratio below this is a resonance

@@ -1,4 +1,4 @@
-"""Issue 12, item 9: the ablation of the paper's controller, row by row, and its report table."""
+"""The ablation of the paper's controller, row by row, and its report table."""
 from __future__ import annotations
 
 import json

@@ -31,7 +31,7 @@ from nanosim.design.lti import load_state_space_npz  # noqa: E402
 from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES  # noqa: E402
 
 MODEL = Path(__file__).parent / "data" / "identified_seed0.npz"
-README = Path(__file__).parents[1] / "README.md"
+OWN_CONTROLLER_DOC = Path(__file__).parents[1] / "docs" / "howto" / "own-controller.md"
 
 
 @pytest.fixture(scope="module")
@@ -251,9 +251,9 @@ def test_feedforward_inverse_recovers_a_double_real_pole():
 # user controllers
 # ----------------------------------------------------------------------------------------
 def _readme_pid(tmp_path) -> Path:
-    text = README.read_text()
+    text = OWN_CONTROLLER_DOC.read_text()
     m = re.search(r"```python\n(# my_pid\.py.*?)```", text, re.S)
-    assert m, "README: the hand-written PID example (```python block starting '# my_pid.py') is missing"
+    assert m, f"{OWN_CONTROLLER_DOC}: the hand-written PID example (```python block starting '# my_pid.py') is missing"
     p = tmp_path / "my_pid.py"
     p.write_text(m.group(1))
     return p
@@ -284,7 +284,7 @@ def test_controller_files_load_from_npz_and_mat_and_errors_name_the_problem(tmp_
 
 
 def test_readme_pid_and_a_bench_design_run_through_nanosim_compare(tmp_path, twin):
-    """The README's ten-line PID (module:function) beside a bench design: twin, one seed, the bandwidth
+    """The how-to guide's ten-line PID (module:function) beside a bench design: twin, one seed, the bandwidth
     experiment; scorecard.json has both controllers and every metric."""
     from nanosim.cli import main
     from nanosim.pipeline.scorecard import ACCEPTANCE, METRICS
@@ -312,7 +312,7 @@ def test_readme_pid_and_a_bench_design_run_through_nanosim_compare(tmp_path, twi
     assert doc["controllers"]["my_pid:make"]["robustness"]["mu_peak"] is None          # an object: no matrices
     assert doc["controllers"]["paper"]["robustness"]["multiloop_disk_margin"] > 0.4
     # the twin analysed as nanosim design analyses it: the loop as run, with the bench's amplifier and gauge
-    # filters (until session 17 compare left them out: the exported lqg's twin margin read 0.225, not 0.304).
+    # filters (without them the exported lqg's twin margin reads lower).
     # The paper's loop (this older test model's) is at the edge of stability on the twin, spectral radius 1.00005
     # (alpha 0 either way), so peak sigma(S_o) tells the two apart: 163 as run, 30 without the filters.
     from nanosim.design.robustness import LoopPlant

@@ -96,14 +96,14 @@ def test_pipeline_end_to_end(tmp_path):
     assert_allclose(m["resolution_sigma_nm"]["open_loop"], 11.4, rtol=0.2)
     assert m["creep"]["closed_loop_drift_nm"] < 5.0 < 50.0 < m["creep"]["open_loop_drift_nm"]
     # Closed-loop figures are predictions of the geometry-built stage v2 with the exported default (the robust
-    # LQG, issue 13); nothing closed-loop was fitted. Where the prediction meets the paper's figure, the paper's
+    # LQG); nothing closed-loop was fitted. Where the prediction meets the paper's figure, the paper's
     # figure is the bound (nanosim.paper.PAPER); where it does not, the prediction is pinned with its spread
     # over seeds 0-4 and the paper's band stated.
     assert m["hysteresis"]["closed_loop_nm"] < 50.0                      # < 0.25 % of 20 um
     assert m["resolution_sigma_table_nm"]["closed_loop"] <= P.PAPER["sig_c"]    # 1.83-1.88 nm on seeds 0-4
     assert_allclose(m["small_steps"]["plateau_means_nm"], m["small_steps"]["targets_nm"], atol=3.0)
     assert m["bandwidth_S_hz"] >= P.PAPER["bwS"]                            # 36.4-36.7 Hz on seeds 0-4
-    assert m["step_2um"]["overshoot_percent"] <= 10.0                     # issue 13; 0.76-1.01 % on seeds 0-4
+    assert m["step_2um"]["overshoot_percent"] <= 10.0                     # bench spec; 0.76-1.01 % on seeds 0-4
     assert m["step_2um"]["settling_ms"] <= P.PAPER["settle"]              # 6.75-8.0 ms on seeds 0-4
     # contour mean at 1000 um/s: 39.8-41.2 nm on seeds 0-4 (40.0 on seed 0), about the paper's 40 nm (README,
     # "Controller"); the paper band is < 100 nm
@@ -111,7 +111,6 @@ def test_pipeline_end_to_end(tmp_path):
     assert 36.0 <= fast["mean_error_nm"] <= 47.0
     report = (run_dir / "report.md").read_text()
     assert "Paper vs simulation" in report and "![" in report and "linear twin" in report
-    shared = Path(__file__).resolve().parents[2] / "shared" / "tools" / "compare_to_paper.py"
-    if shared.is_file():
-        p = subprocess.run([sys.executable, str(shared), str(run_dir)], capture_output=True, text=True)
-        assert "inside their bands" in p.stdout
+    checker = Path(__file__).resolve().parent / "data" / "shared" / "tools" / "compare_to_paper.py"
+    p = subprocess.run([sys.executable, str(checker), str(run_dir)], capture_output=True, text=True)
+    assert "inside their bands" in p.stdout, p.stdout + p.stderr

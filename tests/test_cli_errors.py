@@ -220,7 +220,7 @@ def test_bad_input_one_line_exit_2_out_untouched(fx, tmp_path, capsys, case):
 
 
 def test_sweep_help_lists_what_parse_param_accepts(capsys):
-    from nanosim.pipeline.sweep import _chain_length_fields, parse_param
+    from nanosim.pipeline.sweep import chain_length_fields, parse_param
 
     with pytest.raises(SystemExit):
         main(["sweep", "--help"])
@@ -229,7 +229,7 @@ def test_sweep_help_lists_what_parse_param_accepts(capsys):
     for fam in ("fb1", "fb2", "swing", "apa", "fourbar1", "lever"):
         assert fam in text
         parse_param(f"thickness.{fam}=100:120:2")
-    for field in _chain_length_fields():
+    for field in chain_length_fields():
         assert field in text
         parse_param(f"length_mm.{field}=10:12:2")
 

@@ -309,25 +309,7 @@ def test_defaults_follow_constants():
     assert cfg.dt_s == 1 / 4000
 
 
-# --- speed (timed only with --benchmark-enable) -----------------------------------
-
-def test_bench_actuator_step(benchmark):
-    chain = ActuatorChain(seed=0)
-    u = np.array([0.5, 1.0, 1.5])
-    benchmark(chain.step, u)
-
-
-def test_bench_actuator_run_40000(benchmark):
-    u = np.random.default_rng(0).uniform(0, 3, (40_000, 3))
-    chain = ActuatorChain(seed=0)
-    out = benchmark(chain.run, u)
-    assert out.v_free_V.shape == (40_000, 3)
-
-
-def test_bench_sensor_step(benchmark):
-    sensor = SensorChain(seed=0)
-    d = np.array([1.0, -2.0, 3.0])
-    benchmark(sensor.step, d)
+# speed: tests/bench/bench_electronics.py (ratios measured in the same run)
 
 
 # --- shaped DAC noise and a DAC spanning the command range (nanosim.stage bench settings) -----

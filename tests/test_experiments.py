@@ -1,4 +1,4 @@
-"""Closed-loop experiment machinery (issue 6): metrics on analytic signals, twin vs MuJoCo."""
+"""Closed-loop experiment machinery: metrics on analytic signals, twin vs MuJoCo."""
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose

@@ -1,4 +1,4 @@
-"""Identification on the simulated stage (issue 4): the ideal stage against its modal analysis."""
+"""Identification on the simulated stage: the ideal stage against its modal analysis."""
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose

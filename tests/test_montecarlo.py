@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from nanosim.pipeline import mc_stats
 from nanosim.pipeline.config import MonteCarloConfig
@@ -88,9 +89,16 @@ def test_v1_stage_maps_onto_its_lumped_springs():
 def test_wilson_interval_and_yield_table():
     lo, hi = mc_stats.wilson_interval(0, 10)
     assert lo == 0.0 and hi == pytest.approx(0.2775, abs=1e-4)       # textbook value, z = 1.96
+    # the closed form at the exact quantile z = 1.95996...
+    z = stats.norm.ppf(0.975)
+    p, n = 0.8, 10
+    d = 1 + z * z / n
+    c, h = (p + z * z / (2 * n)) / d, z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    assert mc_stats.wilson_interval(8, 10) == pytest.approx((c - h, c + h), rel=1e-12)
+    assert mc_stats.wilson_interval(9, 10, confidence=0.99)[0] < mc_stats.wilson_interval(9, 10)[0]
     lo, hi = mc_stats.wilson_interval(8, 10)
     assert (lo, hi) == pytest.approx((0.4902, 0.9433), abs=1e-4)
-    # every sample passing: the upper end is 1 exactly (the formula alone gives 0.9999999999999999 at n = 100)
+    # every sample passing: the upper end is 1 exactly
     for n in (2, 100, 200, 1000):
         assert mc_stats.wilson_interval(n, n)[1] == 1.0 and mc_stats.wilson_interval(0, n)[0] == 0.0
     spec = mc_stats.check_spec({"limits": [{"metric": "bandwidth_S_hz", "min": 28, "unit": "Hz"},
@@ -373,7 +381,7 @@ def test_crosscheck_agreement_is_relative_or_within_two_reading_quanta():
 
 
 def test_crosscheck_agrees_within_the_resolution_of_the_twins_spread():
-    # seed 1's sample 9 (session 18): twin 0.605 %, MuJoCo 0.763 % (3.2 nm apart, 2.1 counts) fails the two-count
+    # seed 1's sample 9: twin 0.605 %, MuJoCo 0.763 % (3.2 nm apart, 2.1 counts) fails the two-count
     # rule on the twin's reading alone; the twin's readings at 0-8 ppm span 0.529-0.691 %: MuJoCo is 1.4 nm above
     # the range, within two counts; a range ending at 0.60 % leaves it 3.3 nm (2.1 counts) out
     lsb = 20.0 / 2 ** 16 * 5.0 * 1e3
@@ -536,12 +544,10 @@ def test_sweep_point_with_the_bandwidth_rule_end_to_end(tmp_path):
 def test_pareto_figure_keeps_a_flat_axis_readable():
     # a parameter that leaves travel unchanged to 1e-8 (the table mass): its axis spans +-0.5 % of the value instead
     # of 1e-6 um (unreadable ticks); an axis that spreads keeps matplotlib's limits
-    from nanosim.plots.montecarlo import _flat_limits, fig_pareto
+    from nanosim.plots.montecarlo import fig_pareto
 
     travel = np.array([74.2767441, 74.2767452, 74.2767470])
-    lo, hi = _flat_limits(travel)
-    assert lo == pytest.approx(travel.mean() * 0.995) and hi == pytest.approx(travel.mean() * 1.005)
-    assert _flat_limits(np.array([45.8, 57.7])) is None and _flat_limits(np.array([np.nan])) is None
+    lo, hi = travel.mean() * 0.995, travel.mean() * 1.005
     pts = [{"travel_um": t, "bandwidth_S_hz": b, "resolution_nm": 2.0} for t, b in zip(travel, (57.7, 53.2, 45.8))]
     ax = fig_pareto(pts, [0], "travel_um", "bandwidth_S_hz", "resolution_nm").axes[0]
     assert ax.get_xlim() == pytest.approx((lo, hi)) and ax.get_ylim()[0] < 45.8 < 57.7 < ax.get_ylim()[1]
@@ -550,16 +556,16 @@ def test_pareto_figure_keeps_a_flat_axis_readable():
 def test_sweep_report_columns_follow_the_design_rule():
     # an lqg rule's points show its own margin, mu and weight; the H-infinity design's its gamma (the lqg rows'
     # gamma belongs to the H-infinity reference design, not to the exported controller)
-    from nanosim.pipeline.sweep import _report
+    from nanosim.pipeline.sweep import report_markdown
 
     pt = {"index": 0, "label": "target_mass_g=10", "first_mode_hz": 172.6, "travel_um": 74.28, "bandwidth_S_hz": 53.2,
           "bandwidth_T_hz": 137.0, "resolution_nm": 2.07, "gamma": 1.207, "exported_disk_margin": 0.659,
           "exported_mu_peak": 0.982, "exported_control_weight": 0.001, "pareto": True}
     doc = {"parameters": [{"name": "target_mass_g", "values": [10.0]}], "points": [pt], "pareto_ties": PARETO_TIES,
            "design": {"architecture": "lqg-bandwidth"}}
-    rows = [ln for ln in _report(doc, 1.0).splitlines() if ln.startswith("| ")]
+    rows = [ln for ln in report_markdown(doc, 1.0).splitlines() if ln.startswith("| ")]
     assert rows[0].endswith("| disk margin | mu | R_u | Pareto |")
     assert rows[1].endswith("| 0.659 | 0.982 | 0.001 | yes |")
     doc["design"]["architecture"] = "hinf"
-    rows = [ln for ln in _report(doc, 1.0).splitlines() if ln.startswith("| ")]
+    rows = [ln for ln in report_markdown(doc, 1.0).splitlines() if ln.startswith("| ")]
     assert rows[0].endswith("| gamma | Pareto |") and rows[1].endswith("| 1.207 | yes |") and "0.659" not in rows[1]

@@ -64,20 +64,20 @@ def test_every_figure_the_experiments_write_is_registered():
 def test_controller_section_describes_the_exported_bench_design_not_the_hinf_reference():
     """design.json of an lqg export: the report names the lqg design, its order and prefilter notches; an
     H-infinity export keeps the H-infinity paragraph."""
-    from nanosim.pipeline.report import _architecture
+    from nanosim.pipeline.report import architecture_section
     des = {"architecture": "lqg", "reduced_order": 14,
            "damping_loop": {"zeta_added": 0.1, "mode_hz": 176.0, "lowpass_hz": 400.0},
            "exported_controller": {"architecture": "lqg", "tuning_rule": "LQG rule", "controller_order": 49,
                                    "parameters": {"reference_prefilter": {
                                        "notches": [{"freq_hz": 452.2, "zeta_zero": 0.063, "zeta_pole": 0.7}],
                                        "prefilter_states": 6}}}}
-    text = _architecture(des)
+    text = architecture_section(des)
     assert "`lqg` design (49 states)" in text and "LQG rule" in text
     assert "notches at 452 Hz (zeta 0.063 -> 0.7)" in text and "6 of the states" in text
     assert "H-infinity mixed-sensitivity" not in text
     des.pop("exported_controller")
     des["architecture"] = "hinf"
-    assert "H-infinity mixed-sensitivity" in _architecture(des)
+    assert "H-infinity mixed-sensitivity" in architecture_section(des)
 
 
 def test_controllers_section_scores_the_run_against_the_bench_acceptance(tmp_path):
@@ -107,12 +107,12 @@ def test_controllers_section_scores_the_run_against_the_bench_acceptance(tmp_pat
 
 def test_seeds_summary_takes_the_worst_seed_per_criterion():
     from nanosim.pipeline.scorecard import run_acceptance
-    from nanosim.pipeline.seeds import _acceptance_summary
+    from nanosim.pipeline.seeds import acceptance_summary
 
     def seed(settle, bw):
         return {"acceptance": {"controller": "lqg", "controller_order": 49, "criteria": run_acceptance(
             {"bandwidth_S_hz": bw, "step_2um": {"settling_ms": settle, "overshoot_percent": 0.3}}, None)}}
-    acc = _acceptance_summary([0, 1, 2], {0: seed(6.0, 45.0), 1: seed(10.5, 43.0), 2: seed(11.5, 44.0)})
+    acc = acceptance_summary([0, 1, 2], {0: seed(6.0, 45.0), 1: seed(10.5, 43.0), 2: seed(11.5, 44.0)})
     rows = {r["key"]: r for r in acc["criteria"]}
     assert rows["step_settling_ms"]["worst"] == 11.5 and rows["step_settling_ms"]["every_seed"] is False
     assert rows["bandwidth_S_hz"]["worst"] == 43.0 and rows["bandwidth_S_hz"]["every_seed"] is True

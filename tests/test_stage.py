@@ -1,4 +1,4 @@
-"""The sampled stage (issue 3): electromechanics on the MuJoCo plant and its linear twin."""
+"""The sampled stage: electromechanics on the MuJoCo plant and its linear twin."""
 import control as ct
 import numpy as np
 import pytest
@@ -170,7 +170,7 @@ def test_bad_commands_raise_before_simulating(bad, match):
         st.run(np.zeros((5, 2)))
 
 
-# --- stage v2: computation delay, floor vibration, noise budget (issue 12) -------------------------
+# --- stage v2: computation delay, floor vibration, noise budget ------------------------------------
 
 def test_computation_delay_shifts_the_mujoco_response_by_one_sample(model):
     """Same command, delay 1 vs 0 (everything else off): the response is the same, one period later."""

@@ -1,4 +1,4 @@
-"""The stage v2 MJCF against the paper's targets (issue 12), its own geometry, and MuJoCo's own dynamics."""
+"""The stage v2 MJCF against the paper's targets, its own geometry, and MuJoCo's own dynamics."""
 from pathlib import Path
 
 import mujoco

@@ -1,4 +1,4 @@
-"""Per-column identification order (issue 13): no resonance that only one column has.
+"""Per-column identification order: no resonance that only one column has.
 
 Actuator A sits near the nodal lines of the 176.3 Hz and 464.5 Hz modes (the stage's
 3-fold symmetry; MuJoCo's linearization gives them 1/1000 and 1/250 of their weight in

@@ -1,4 +1,4 @@
-"""Fit the one noise level of the bench model: the DAC's white noise (issue 12, item 7).
+"""Fit the one noise level of the bench model: the DAC's white noise.
 
 The paper's open-loop probe sigma at rest is 11.4 nm (Sec. 5, Fig. 16). With every other source at
 its sourced level, the variance at the probes is ``sigma^2 = L^2 s1^2 + s0^2`` in the DAC level ``L``

@@ -1,4 +1,4 @@
-"""Ablation of the paper's controller on the simulated stage (issue 12, item 9).
+"""Ablation of the paper's controller on the simulated stage.
 
 Usage::
 

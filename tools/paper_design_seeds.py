@@ -1,4 +1,4 @@
-"""Mean and spread of the paper's controller over several pipeline runs (issue 12, item 9).
+"""Mean and spread of the paper's controller over several pipeline runs.
 
 Usage::
 

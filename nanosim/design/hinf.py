@@ -114,12 +114,12 @@ def check_assumptions(P, nmeas: int, ncon: int, *, rtol: float = 1e-10, axis_rto
     ``B = [B1 B2]``, ``C = [C1; C2]``, ``D = [[D11, D12], [D21, D22]]``. The
     conditions are those of slycot ``sb10ad`` (Glover & Doyle, 1988):
 
-    (A1) ``(A, B2)`` stabilizable and ``(C2, A)`` detectable;
-    (A2) ``D12`` full column rank and ``D21`` full row rank;
-    (A3) ``[A - jwI, B2; C1, D12]`` full column rank for all ``w`` (no
-         imaginary-axis zeros of the ``u -> z`` block P12);
-    (A4) ``[A - jwI, B1; C2, D21]`` full row rank for all ``w`` (no
-         imaginary-axis zeros of the ``w -> v`` block P21).
+    - (A1) ``(A, B2)`` stabilizable and ``(C2, A)`` detectable;
+    - (A2) ``D12`` full column rank and ``D21`` full row rank;
+    - (A3) ``[A - jwI, B2; C1, D12]`` full column rank for all ``w`` (no
+      imaginary-axis zeros of the ``u -> z`` block P12);
+    - (A4) ``[A - jwI, B1; C2, D21]`` full row rank for all ``w`` (no
+      imaginary-axis zeros of the ``w -> v`` block P21).
 
     In the mixed-sensitivity plant of ``control.augw`` a plant or weight pole on
     the imaginary axis (e.g. a weight integrator) breaks (A1) detectability and/or

@@ -1,8 +1,10 @@
 """Loop transfer matrices of a MIMO feedback loop, in frequency and in state space.
 
-Conventions (shared by :mod:`~nanosim.design.margins`, :mod:`~nanosim.design.mu`,
-:mod:`~nanosim.design.uncertainty` and :mod:`~nanosim.design.robustness`)
--------------------------------------------------------------------------------
+Conventions
+-----------
+Shared by :mod:`~nanosim.design.margins`, :mod:`~nanosim.design.mu`,
+:mod:`~nanosim.design.uncertainty` and :mod:`~nanosim.design.robustness`.
+
 Plant and controller
     ``G`` is ``ny x nu`` (controller volts in, sensor volts out).  Negative feedback,
     ``e = r - y``.  The controller may be two-degree-of-freedom::

@@ -95,8 +95,8 @@ IDENTIFIED_DELAY_SAMPLES = 0
 IDENTIFIED_INPUT_GAIN_OF_NOMINAL = 0.733
 # The six loop transfer matrices of robustness.json and its figure (LoopResponse names).
 ROBUSTNESS_MAPS = ("S_o", "S_i", "T_o", "T_i", "KS", "SG")
-# issue 13's acceptance: a multiloop disk margin of at least 0.4 (the scorecard's target, the robust bench
-# design's constraint, the dashed line of the disk-margin figure)
+# the bench specification's acceptance: a multiloop disk margin of at least 0.4 (the scorecard's target, the
+# robust bench design's constraint, the dashed line of the disk-margin figure)
 DISK_MARGIN_TARGET = 0.4
 # A closed-loop pole is "visible" if its modal term adds at least this much to the peak of
 # [T_ry, S_o] (reference and output disturbance -> y) at its resonance.  An identified model

@@ -1,6 +1,6 @@
 """The stage's uncertainty set, perturbed plants and robust stability by mu.
 
-Uncertainty set (issue 13): piezo gain per input channel 0.75 ... 1.0 of nominal (the
+Uncertainty set: piezo gain per input channel 0.75 ... 1.0 of nominal (the
 hysteresis slope after a reversal is about 0.75 of the nominal slope), every modal
 frequency +-3 %, every modal damping x0.5 ... x2, and 0 ... 1 sample of computation delay
 beyond the loop as run (whose own delays are in the plant).  :data:`STAGE_UNCERTAINTY`
@@ -360,7 +360,7 @@ def robust_stability_mu(G_nominal, K, Ky, dt, freq_hz, *,
                         pade_order: int = 3) -> RobustStabilityResult:
     """Robust stability of ``u = K e + Ky y`` for the stage's parametric uncertainty.
 
-    Uncertainty set (per the issue): piezo gain per input channel in
+    Uncertainty set: piezo gain per input channel in
     ``input_gain_range`` (hysteresis slope after a reversal ~0.75 of nominal), every
     modal frequency scaled within ``freq_scale_range`` (+-3 %), every modal damping
     scaled within ``damping_scale_range`` (x0.5 ... x2), computation delay of

@@ -1,4 +1,4 @@
-"""The paper's controller as a prediction, element by element (issue 12, item 9).
+"""The paper's controller as a prediction, element by element.
 
 Each row switches one element of the stage model (delay, amplifier, gauge,
 noise spectra, hysteresis, creep, identification quality, ...) and predicts
@@ -121,7 +121,7 @@ def ablation_rows() -> list[AblationRow]:
                     model_freq_scale=1.01),
         AblationRow("model modes -1 %", "design model's poles 1 % low (A and B x 0.99, DC gain kept)", v2,
                     model_freq_scale=0.99),
-        AblationRow("v1 stage", "v1 electronics, v1 creep, no floor (stage before issue 12)", StageConfig.v1()),
+        AblationRow("v1 stage", "v1 electronics, v1 creep, no floor (the v1 stage model)", StageConfig.v1()),
     ]
     return rows
 

@@ -15,7 +15,7 @@ For every controller (a bench design from the identified model, a state-space fi
    (:func:`nanosim.pipeline.design.write_robustness`).
 
 The scorecard (:mod:`nanosim.pipeline.scorecard`) then gives mean, spread and worst case
-per metric and controller, the issue's acceptance per metric, and the default chosen by
+per metric and controller, acceptance against the bench specification per metric, and the default chosen by
 its rule; the overlaid figures are :mod:`nanosim.plots.compare`.
 """
 from __future__ import annotations

@@ -227,16 +227,18 @@ def evaluate_spec(flat: dict, spec: dict) -> dict:
     return res
 
 
-def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95 % Wilson score interval of a proportion ``k / n``."""
+def wilson_interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval of a proportion ``k / n`` (Wilson, 1927).
+
+    ``(p + z^2 / 2n -+ z sqrt(p (1 - p) / n + z^2 / 4n^2)) / (1 + z^2 / n)`` with ``p = k / n`` and ``z``
+    the two-sided normal quantile of ``confidence``; computed by
+    ``scipy.stats.binomtest(k, n).proportion_ci(method="wilson")``, whose ends are 0 and 1 exactly at
+    ``k = 0`` and ``k = n``. ``(nan, nan)`` for ``n = 0``.
+    """
     if n == 0:
         return (math.nan, math.nan)
-    p = k / n
-    d = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / d
-    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    # at k = 0 (k = n) the lower (upper) end is 0 (1) exactly; the formula rounds it by an ulp
-    return (0.0 if k == 0 else max(0.0, c - h), 1.0 if k == n else min(1.0, c + h))
+    ci = stats.binomtest(int(k), int(n)).proportion_ci(confidence_level=confidence, method="wilson")
+    return (float(ci.low), float(ci.high))
 
 
 def yield_table(flats: list[dict], spec: dict) -> list[dict]:

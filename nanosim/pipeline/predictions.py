@@ -1,4 +1,4 @@
-"""Stage v2 validation (issue 12, item 8): what the model was fitted to and what it predicts.
+"""Stage v2 validation: what the model was fitted to and what it predicts.
 
 :func:`validation_rows` reads a run folder and returns one row per checked
 quantity, each marked ``fitted`` (a parameter was set from it) or

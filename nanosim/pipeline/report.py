@@ -14,7 +14,7 @@ from nanosim import paper as P
 from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S
 from nanosim.pipeline import artifacts as A
 
-__all__ = ["design_warnings", "pass_count", "write_report"]
+__all__ = ["architecture_section", "design_warnings", "pass_count", "write_report"]
 
 # (section, label, paper value, unit, getter on the run's json dicts, acceptance test, band text)
 
@@ -307,7 +307,7 @@ def run_acceptance_doc(run) -> dict:
             "criteria": run_acceptance(_load_or_none(run, A.METRICS_JSON), _load_or_none(run, A.ROBUSTNESS_JSON))}
 
 
-def _architecture(des: dict) -> str | None:
+def architecture_section(des: dict) -> str | None:
     """One paragraph on the controller structure the Sec. 5 numbers were measured with."""
     if not des:
         return None
@@ -429,7 +429,7 @@ def _controllers_blocks(run: Path, des: dict) -> list:
     """The "Controllers" section: the exported controller, its acceptance on this run, and the bench."""
     from nanosim.design.architectures import BENCH
     from nanosim.pipeline.scorecard import DEFAULT_RULE, format_value
-    arch = _architecture(des)
+    arch = architecture_section(des)
     has_metrics = (run / A.METRICS_JSON).is_file()
     if not arch and not has_metrics:
         return []
@@ -440,8 +440,9 @@ def _controllers_blocks(run: Path, des: dict) -> list:
         rows = run_acceptance_doc(run)["criteria"]
         n_ok = sum(1 for r in rows if r["pass"])
         n_meas = sum(1 for r in rows if r["pass"] is not None)
-        out += [("p", f"The controller bench's acceptance (issue 13: the paper's measured figures, a multiloop disk "
-                      f"margin with the loop's delay and mu over the uncertainty set), this run: {n_ok} of {n_meas} "
+        out += [("p", "Acceptance against the bench specification (nanosim/pipeline/scorecard.py, ACCEPTANCE: the "
+                      "paper's measured figures, a multiloop disk margin with the loop's delay and mu over the "
+                      f"uncertainty set), this run: {n_ok} of {n_meas} "
                       "measured criteria met. The feedback loop's own S bandwidth (a PRBS at the reading) is measured "
                       "by `nanosim compare` only."),
                 ("table", ["criterion", "target", "this run", "met"],
@@ -504,7 +505,10 @@ def _scan_blocks(run: Path) -> list:
 
 
 def _stage_v2_blocks(run: Path) -> list:
-    """Issue 12's validation (fitted or predicted), seeds and ablation tables (:mod:`nanosim.pipeline.predictions`)."""
+    """The stage model's validation (fitted or predicted), seeds and ablation tables.
+
+    See :mod:`nanosim.pipeline.predictions`.
+    """
     from nanosim.pipeline.predictions import report_blocks
     return report_blocks(run)
 

@@ -1,11 +1,16 @@
-"""The controller scorecard: metrics, the issue's acceptance, the default rule, and its files.
+"""The controller scorecard: metrics, acceptance against the bench specification, the default rule, and its files.
 
 ``scorecard.json`` holds, per controller, every seed's metrics, their mean, spread
 (standard deviation), minimum, maximum and worst case, the acceptance verdict per
 criterion (on the worst case over the seeds) and the robustness figures;
 ``scorecard.md`` and ``scorecard.html`` show the same as a table.
 
-The default rule (README, "Controller bench")
+The bench specification is :data:`ACCEPTANCE`: the metrics of :data:`METRICS` that carry a target, the
+paper's measured figures (:mod:`nanosim.paper`), a multiloop disk margin of at least
+:data:`~nanosim.design.robustness.DISK_MARGIN_TARGET` with the loop's delay, and mu < 1 over the
+stage's uncertainty set.
+
+The default rule
 ---------------------------------------------
 Among the bench designs, the default is the one that meets the most acceptance
 criteria on every seed (worst case over the seeds); a tie goes to the design that
@@ -43,7 +48,7 @@ class Metric:
     unit : str
     higher_is_better : bool
     target : float or None
-        The issue's acceptance level (None: reported only).
+        The acceptance level of the bench specification (None: reported only).
     strict : bool
         The target is a strict bound (``mu < 1``).
     per_seed : bool
@@ -108,11 +113,11 @@ METRICS: tuple[Metric, ...] = (
     Metric("bandwidth_So_model_hz", "S_o bandwidth, identified model", "Hz", True, per_seed=False),
 )
 ACCEPTANCE: tuple[str, ...] = tuple(m.key for m in METRICS if m.target is not None)
-DEFAULT_RULE = ("Among the bench designs, the default is the one that meets the most of the issue's acceptance "
-                "criteria on every seed (worst case over the seeds; the S bandwidth counts twice, reference to error "
-                "and the feedback loop's); a tie goes to the design that is robustly stable over the uncertainty set "
-                "(mu < 1), then to the larger worst-case multiloop disk margin, then to the higher worst-case "
-                "feedback S bandwidth.")
+DEFAULT_RULE = ("Among the bench designs, the default is the one that meets the most of the bench specification's "
+                "acceptance criteria on every seed (worst case over the seeds; the S bandwidth counts twice, reference "
+                "to error and the feedback loop's); a tie goes to the design that is robustly stable over the "
+                "uncertainty set (mu < 1), then to the larger worst-case multiloop disk margin, then to the higher "
+                "worst-case feedback S bandwidth.")
 _BY_KEY = {m.key: m for m in METRICS}
 _ALPHA = "disk-margin alpha, dimensionless (as robustness.json's *_alpha)"
 # the metrics without a unit (Metric.unit ""): what their numbers are
@@ -377,8 +382,9 @@ def _markdown(doc: dict) -> str:
              f"Plant: {doc['plant']}; seeds {seeds}; experiments: "
              f"{doc['experiments'] if isinstance(doc['experiments'], str) else ', '.join(doc['experiments'])}; "
              f"identified model: {doc['model'] or 'n/a'}.\n",
-             "Cells: mean ± standard deviation over the seeds (worst case); ✓/✗: the issue's acceptance on the "
-             "worst case. Robustness rows are per design (the identified model, which is the loop as run, and the "
+             "Cells: mean ± standard deviation over the seeds (worst case); ✓/✗: acceptance against "
+             "the bench specification (nanosim/pipeline/scorecard.py, ACCEPTANCE) on the worst case. Robustness "
+             "rows are per design (the identified model, which is the loop as run, and the "
              "linear twin with the loop's delays and the bench's amplifier and gauge filters; mu over the stage's "
              "uncertainty set).\n",
              markdown_table(doc), "",
@@ -422,8 +428,9 @@ def _html(doc: dict) -> str:
 td,th{{border:1px solid #ccc;padding:4px 8px;text-align:left}}td.ok{{background:#e3f5e1}}td.bad{{background:#fbe3e3}}
 img{{max-width:100%}}</style></head><body><h1>Controller scorecard</h1>
 <p>Plant: {html.escape(doc['plant'])}; seeds {seeds}; identified model: {html.escape(str(doc['model']))}.
-Cells: mean &plusmn; standard deviation over the seeds (worst case); green/red: the issue's acceptance on the worst
-case.</p><table><tr><th>metric</th><th>target</th>{head}</tr>{''.join(rows)}</table>
+Cells: mean &plusmn; standard deviation over the seeds (worst case); green/red: acceptance against the bench
+specification (nanosim/pipeline/scorecard.py, ACCEPTANCE) on the worst case.</p>
+<table><tr><th>metric</th><th>target</th>{head}</tr>{''.join(rows)}</table>
 <p><b>Default rule.</b> {html.escape(doc['default_rule'])}</p>
 <p><b>Default:</b> <code>{html.escape(str(doc['default']))}</code> &mdash; {html.escape(doc['default_reason'])}.</p>
 <h2>Designs</h2><ul>{designs}</ul><h2>Figures</h2>{figs}</body></html>

@@ -36,7 +36,7 @@ from nanosim.pipeline import mc_stats
 from nanosim.pipeline.config import PipelineConfig
 from nanosim.pipeline.timings import record_timings
 
-__all__ = ["parse_seeds", "run_pipeline_seeds"]
+__all__ = ["acceptance_summary", "parse_seeds", "run_pipeline_seeds"]
 
 _KEY = ("bandwidth_S_hz", "bandwidth_T_hz", "step_2um.settling_ms", "step_2um.overshoot_percent",
         "resolution_sigma_nm.open_loop", "resolution_sigma_nm.closed_loop", "hysteresis.open_loop_percent",
@@ -248,10 +248,10 @@ def _summary(seeds, per_seed) -> dict:
             "banded_per_seed": dict(zip(map(str, seeds), banded)),
             "in_band_mean": float(np.mean(counts)), "in_band_worst": int(min(counts)),
             "banded": int(max(banded)), "all_seeds_all_bands": all(c == b for c, b in zip(counts, banded)),
-            "metrics": rows, "acceptance": _acceptance_summary(seeds, per_seed)}
+            "metrics": rows, "acceptance": acceptance_summary(seeds, per_seed)}
 
 
-def _acceptance_summary(seeds, per_seed) -> dict:
+def acceptance_summary(seeds, per_seed) -> dict:
     """Per criterion: the value and verdict on every seed, the worst value and whether every seed passes."""
     from nanosim.pipeline.scorecard import worst_of
     first = per_seed[seeds[0]].get("acceptance") or {}
@@ -287,7 +287,8 @@ def _report(doc: dict, stage_seconds: dict) -> str:
         from nanosim.pipeline.scorecard import format_value
         lines += ["", "## Controllers", "",
                   f"Exported controller: `{acc['controller']}` ({acc['controller_order']} states), designed on each "
-                  f"seed's own identified model. The controller bench's acceptance (issue 13), worst case over the "
+                  "seed's own identified model. Acceptance against the bench specification "
+                  "(nanosim/pipeline/scorecard.py, ACCEPTANCE), worst case over the "
                   f"seeds: **{acc['met_on_every_seed']} of {acc['measured']} measured criteria met on every seed** "
                   "(the feedback loop's own S bandwidth is measured by `nanosim compare`; every seed's report has "
                   "the bench and its default rule).", "",

@@ -44,7 +44,7 @@ from nanosim.pipeline.scaleout import open_executor, run_tasks
 from nanosim.pipeline.timings import record_timings
 
 __all__ = ["parse_param", "param_names", "check_params", "point_model", "design_for_point", "run_sweep",
-           "pareto_front", "SWEEP_EXPERIMENTS"]
+           "pareto_front", "chain_length_fields", "report_markdown", "SWEEP_EXPERIMENTS"]
 
 SWEEP_EXPERIMENTS = ("bandwidth", "resolution")
 # Relative differences below these are ties on the Pareto front (pareto_front). Measured objectives: the spread
@@ -60,7 +60,8 @@ _ALIASES = {"fourbar1": "fb1", "fourbar2": "fb2", "lever": "apa"}
 FAMILIES = ("fb1", "fb2", "swing", "apa")
 
 
-def _chain_length_fields() -> list[str]:
+def chain_length_fields() -> list[str]:
+    """The chain lengths a ``length_mm.<field>`` parameter may name (the ``*_m`` fields of ``ChainGeometry``)."""
     from dataclasses import fields
 
     from nanosim.plant.geometry import ChainGeometry
@@ -72,7 +73,7 @@ def param_names() -> str:
     """The parameter names :func:`parse_param` accepts, as one line (its error and ``--help`` use it)."""
     return (f"thickness.<family> (um) or stiffness.<family> (factor), families {', '.join(FAMILIES)} "
             f"(aliases {', '.join(f'{a}={b}' for a, b in _ALIASES.items())}; stiffness.apa only with an MJCF that "
-            f"has APA notch joints); length_mm.<chain length> ({', '.join(_chain_length_fields())}); "
+            f"has APA notch joints); length_mm.<chain length> ({', '.join(chain_length_fields())}); "
             "target_mass_g (g); piezo_gain (factor)")
 
 
@@ -85,7 +86,7 @@ def parse_param(text: str) -> tuple[str, float, float, int]:
     kind, _, fam = name.partition(".")
     fam = _ALIASES.get(fam, fam)
     ok = (name in ("target_mass_g", "piezo_gain") or (kind in ("thickness", "stiffness") and fam in FAMILIES)
-          or (kind == "length_mm" and fam in _chain_length_fields()))
+          or (kind == "length_mm" and fam in chain_length_fields()))
     if not ok:
         raise ValueError(f"--param: unknown parameter {name!r}; expected {param_names()}")
     parts = span.split(":")
@@ -350,7 +351,7 @@ def run_sweep(out, config: SweepConfig, *, progress: bool = True, say=None) -> d
     write_json(out / A.SWEEP_JSON, doc)
     seconds[A.SWEEP_JSON] = {"wall_seconds": round(time.perf_counter() - t0, 2)}
     record_timings(out, seconds)
-    write_text(out / A.REPORT_MD, _report(doc, seconds[A.SWEEP_JSON]["wall_seconds"]))
+    write_text(out / A.REPORT_MD, report_markdown(doc, seconds[A.SWEEP_JSON]["wall_seconds"]))
     return doc
 
 
@@ -374,7 +375,8 @@ _RULE_NOTE = {"lqg": ", the bench's default: the robust lqg with the least predi
               "hinf": ": the H-infinity design of the weights"}
 
 
-def _report(doc: dict, wall_seconds: float) -> str:
+def report_markdown(doc: dict, wall_seconds: float) -> str:
+    """``report.md`` of a sweep folder from its ``sweep.json`` document (columns follow the design rule)."""
     lines = ["# Flexure design sweep", "",
              "Parameters: " + "; ".join(f"`{p['name']}` = {', '.join(f'{x:.4g}' for x in p['values'])}"
                                         for p in doc["parameters"]), "",

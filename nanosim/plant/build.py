@@ -50,6 +50,8 @@ LEVELS = ("full", "reduced")
 class Numerics:
     """Integrator and loop-closure settings (they must not shape the physics; see the tests).
 
+    Attributes
+    ----------
     timestep_s : divides the 250 us control period.
     closure_timeconst_s, closure_dampratio : weld ``solref``; MuJoCo clamps the time constant
         to >= 2 timesteps.

@@ -33,6 +33,8 @@ __all__ = ["LinearTwin", "linearize"]
 class LinearTwin:
     """Small-signal plant of a Stage.
 
+    Attributes
+    ----------
     sys_V : continuous, controller V -> sensor V (3x3).
     sys_um : continuous, controller V -> um (3x3).
     sysd_V : discrete at the control period (ZOH), controller V -> sensor V.

@@ -40,6 +40,8 @@ MODE_SHAPES_MAX_HZ = 1000.0
 class Mode:
     """One vibration mode.
 
+    Attributes
+    ----------
     freq_hz : undamped natural frequency |lambda| / 2 pi (Hz).
     damping_ratio : -Re(lambda) / |lambda|.
     axis : 'X', 'Y', 'Z' or 'XY' from the probe participation.
@@ -75,6 +77,8 @@ class Mode:
 class ModalResult:
     """All modes of the linearized stage, sorted by frequency.
 
+    Attributes
+    ----------
     static_gain_um_per_V : (3, 3) probe displacement per controller volt
         (x20 amplifier and linear piezo included), rows X, Y, Z, columns A, B, C.
     body_names : names matching the rows of :meth:`body_displacement`.

@@ -33,8 +33,8 @@ __all__ = ["StageConfig", "Trace", "Stage", "rollout_probes_um", "run_open_loop_
 _DAC_SPAN = dict(dac_full_scale_V=(C.COMMAND_RANGE_V[1] - C.COMMAND_RANGE_V[0]) / 2,
                  dac_center_V=(C.COMMAND_RANGE_V[1] + C.COMMAND_RANGE_V[0]) / 2)
 STAGE_ELECTRONICS = ElectronicsConfig(**_DAC_SPAN)
-# Stage v1 (before issue 12): no computation delay, amplifier or gauge bandwidth, no amplifier
-# noise; DAC noise 1.39 mV low-passed by two poles at 5 Hz (a level and corner calibrated to
+# Stage v1 (the first stage model, kept for comparison): no computation delay, amplifier or gauge bandwidth,
+# no amplifier noise; DAC noise 1.39 mV low-passed by two poles at 5 Hz (a level and corner calibrated to
 # the open- and closed-loop sigma). For comparisons and ablations.
 STAGE_ELECTRONICS_V1 = ElectronicsConfig(**_DAC_SPAN, computation_delay_samples=0, dac_noise_V=1.39e-3,
                                          dac_noise_corner_Hz=5.0, dac_flicker_corner_Hz=None,
@@ -57,7 +57,10 @@ class StageConfig:
 
     @classmethod
     def v1(cls) -> "StageConfig":
-        """The stage-v1 electromechanics (issue 12's "before"): v1 electronics, v1 creep, no floor vibration."""
+        """The stage-v1 electromechanics (the first stage model, kept for comparison).
+
+        v1 electronics, v1 creep, no floor vibration.
+        """
         return cls(electronics=STAGE_ELECTRONICS_V1, piezo=PiezoConfig.calibrated_v1(), floor=FloorConfig.off())
 
 

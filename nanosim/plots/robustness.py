@@ -81,7 +81,7 @@ def plot_disk_margins(analyses, target_alpha: float = DISK_MARGIN_TARGET, title:
     ----------
     analyses : mapping of str to ControllerRobustness
     target_alpha : float
-        Drawn as a dashed line (issue 13: multiloop disk margin >= 0.4,
+        Drawn as a dashed line (the bench specification: multiloop disk margin >= 0.4,
         :data:`~nanosim.design.robustness.DISK_MARGIN_TARGET`).
     title : str
 

@@ -22,6 +22,8 @@ def _t(t):
 class Waveform:
     """Reference ``offset + amplitude * direction * shape(t)``.
 
+    Attributes
+    ----------
     kind : one of :data:`PRESETS`.
     offset_um : (3,) XYZ hold position.
     amplitude_um : peak (sine/triangle/step) or contour corner distance per axis.

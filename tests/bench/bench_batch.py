@@ -1,4 +1,4 @@
-"""Batch engine throughput, each target a ratio measured in the same run (issue 14).
+"""Batch engine throughput, each target a ratio measured in the same run.
 
 Run: OPENBLAS_NUM_THREADS=1 python -m pytest tests/bench/bench_batch.py --benchmark-enable -s
 

@@ -2,8 +2,8 @@
 
 Run: python -m pytest tests/bench/bench_stage.py --benchmark-enable -s
 Reports simulated seconds per wall second for each, and their cost ratio.
-Targets: issue 3: Stage.run costs <= 1.3x bare stepping; issue 12: Stage.run >= 1.0x real time on one core
-with the v2 simulation model.
+Targets: Stage.run costs <= 1.3x bare stepping; Stage.run >= 1.0x real time on one core with the v2
+simulation model.
 """
 import time
 

@@ -1,4 +1,4 @@
-"""Viewer speed with a real browser on the same machine (issue 7).
+"""Viewer speed with a real browser on the same machine.
 
 Run: python tests/bench/bench_viewer.py [SECONDS]
 

@@ -14,9 +14,8 @@ check here close the loop around the identified model as it is
 (``LOOP_DELAY_SAMPLES`` = :data:`~nanosim.design.robustness.IDENTIFIED_DELAY_SAMPLES` = 0,
 pinned by ``tests/test_bench_controllers.py``). ``delay_samples = d`` adds ``z^-d`` for a
 model identified from record rows (the reading of the period in which the command was
-applied), which lacks the loop's sample of delay. Until session 5 the bench designs added
-that sample to the identified model, i.e. designed and checked for one sample more delay
-than the stage has (the ``lqg`` design did not).
+applied), which lacks the loop's sample of delay. A model of ``nanosim identify`` must not get that
+sample again: it would design and check for one sample more delay than the stage has.
 
 Filters are continuous prototypes mapped to 4 kHz with Tustin, prewarped at their own
 characteristic frequency, so a notch sits exactly on its mode.
