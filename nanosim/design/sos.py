@@ -3,9 +3,9 @@
 Fixed-point and DSP implementations run a controller as cascaded biquads, not as a dense
 state space. Each channel ``K_ij(z)`` (output ``i``, input ``j``) of ``x[k+1] = A x[k] + B v[k]``,
 ``u[k] = C x[k] + D v[k]`` is reduced to a minimal realization (the other channels' states are
-uncontrollable or unobservable from it), written as zeros, poles and gain
-(:func:`scipy.signal.ss2zpk`) and paired into sections (:func:`scipy.signal.zpk2sos`,
-``pairing="nearest"``), so that::
+uncontrollable or unobservable from it), written as zeros, poles and gain (poles: eigenvalues;
+zeros: the Rosenbrock pencil; no polynomials) and paired into sections
+(:func:`scipy.signal.zpk2sos`, ``pairing="nearest"``), so that::
 
     K_ij(z) = prod_s (b0_s + b1_s z^-1 + b2_s z^-2) / (1 + a1_s z^-1 + a2_s z^-2)
 
@@ -31,6 +31,21 @@ def _minimal_siso(A, b, c, d, tol):
     s = ct.ss(A, b, c, d, True)
     m = ct.minreal(s, tol=tol, verbose=False)
     return np.asarray(m.A), np.asarray(m.B), np.asarray(m.C), np.asarray(m.D)
+
+
+def _delayed(sos, r: int) -> np.ndarray:
+    """Sections of ``z^-r H(z)`` from those of ``H(z)``, which :func:`scipy.signal.zpk2sos` builds with ``r``
+    zeros at the origin for a strictly proper channel (``r`` more poles than zeros): each such zero leaves a
+    trailing zero coefficient, and shifting a numerator right by one multiplies its section by ``z^-1``.
+    """
+    sos = np.array(sos, float)
+    for sec in sos[::-1]:
+        while r > 0 and sec[2] == 0.0:
+            sec[0:3] = [0.0, sec[0], sec[1]]
+            r -= 1
+    if r:
+        raise ValueError(f"sos: {r} sample(s) of delay left over: the sections have no trailing zero coefficient")
+    return sos
 
 
 def _zpk(a, b, c, d):
@@ -90,7 +105,7 @@ def state_space_sos(A, B, C, D, *, minreal_tol: float = 1e-9) -> np.ndarray:
             if k == 0 or not np.isfinite(k):
                 chans[i, j] = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
                 continue
-            chans[i, j] = signal.zpk2sos(z, p, k, pairing="nearest")
+            chans[i, j] = _delayed(signal.zpk2sos(z, p, k, pairing="nearest"), len(p) - len(z))
     n_sec = max(s.shape[0] for s in chans.values())
     out = np.tile(IDENTITY_SECTION, (n_out, n_in, n_sec, 1))
     for (i, j), s in chans.items():
