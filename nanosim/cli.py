@@ -1,4 +1,4 @@
-"""``nanosim`` command line: modes, identify, design, characterize, pipeline, report, montecarlo, sweep, view.
+"""``nanosim`` command line: modes, identify, design, characterize, pipeline, report, montecarlo, sweep, budget, view.
 
 argparse -> config dataclasses (:mod:`nanosim.pipeline.config`, the only home
 of defaults) -> pipeline steps. Every user error prints one line and exits 2.
@@ -426,6 +426,23 @@ def _cmd_sweep(args) -> int:
     return 0
 
 
+def _cmd_budget(args) -> int:
+    from nanosim.pipeline.budget import run_budget
+    from nanosim.pipeline.runfolder import staged_run
+
+    controller = _check_controller(args.controller)         # validate before any work
+    _check_mjcf(args)
+    t0 = time.perf_counter()
+    with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
+        doc = run_budget(stage, controller, axis=C.AXES.index(args.axis), simulate_s=args.simulate or None,
+                         seed=args.seed, mjcf=args.mjcf, progress=_say)
+    chk = doc.get("check")
+    extra = (f"; simulated {chk['simulated_table_nm']['total']:.3f} nm ({args.simulate:g} s records)" if chk else "")
+    print(f"budget done in {time.perf_counter() - t0:.1f} s: {args.axis} table sigma "
+          f"{doc['sigma_table_nm']['total']:.3f} nm (analytic){extra}: {Path(args.out) / A.BUDGET_JSON}")
+    return 0
+
+
 def _cmd_compare(args) -> int:
     from nanosim.pipeline.compare import check_controllers, check_only, run_compare
     from nanosim.pipeline.runfolder import staged_run
@@ -599,6 +616,18 @@ def build_parser() -> argparse.ArgumentParser:
                     help="skip robustness.json (the mu analysis takes ~10 s per controller)")
     cp.add_argument("--mjcf", default=None, type=_file)
     cp.set_defaults(func=_cmd_compare)
+    bu = sub.add_parser("budget", help="closed-loop noise budget of a controller: each source's spectrum through "
+                                       "the loop's transfer functions (analytic), stacked PSD and cumulative "
+                                       "amplitude spectrum")
+    bu.add_argument("--controller", required=True, type=_file, help="controller.npz from 'nanosim design'")
+    bu.add_argument("--out", required=True, type=out, help="run folder (budget.json, budget.npz, figures)")
+    bu.add_argument("--axis", choices=C.AXES, default="X", help="axis of the budget (default X)")
+    bu.add_argument("--simulate", type=_float_in(0.0, 600.0), default=0.0, metavar="SECONDS",
+                    help="also simulate the budget on the linear twin with records of this length (one source at "
+                         "a time and all together) and compare (default 0: analytic only)")
+    bu.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
+    bu.add_argument("--mjcf", default=None, type=_file)
+    bu.set_defaults(func=_cmd_budget)
     from nanosim.viewer import add_view_arguments, run_view
     v = sub.add_parser("view", help="browser 3D view (viser)")
     add_view_arguments(v)

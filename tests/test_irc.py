@@ -73,6 +73,7 @@ def test_irc_is_on_the_bench_and_stable_with_the_identified_model():
     d = design("irc", G)
     Ke, Ky = split_2dof(d.K, 3)
     assert closed_loop_spectral_radius(G, Ke, Ky) < 1.0
+    assert d.config.spectral_radius < 1.0                  # the controller itself: no pole at z = 1
     assert d.n_error == 3 and d.tuning_rule and json.dumps(d.parameters)
     assert all(z["damping_ratio"] > 0.03 for z in d.parameters["first_pair_closed_loop"][:2])
     assert d.parameters["rule"] == dataclasses.asdict(IrcRule())

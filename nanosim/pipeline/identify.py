@@ -254,7 +254,7 @@ def run_identify_data(data_path, out_dir, *, order: int | None = None, progress=
               Dd=sysd.D, dt=np.float64(rec.dt_s), input_names=np.array(rec.input_names),
               output_names=np.array(rec.output_names), input_units=np.array("the record's units"),
               output_units=np.array("the record's units"), order_per_column=np.array([model.order]))
-    save_model_mat(out / "model.mat", sysd, sysc, rec.input_names, rec.output_names, units)
+    save_model_mat(out / A.MODEL_MAT, sysd, sysc, rec.input_names, rec.output_names, units)
     doc = {
         "source": {"file": str(data_path), "n_samples": rec.n_samples, "n_inputs": rec.n_inputs,
                    "n_outputs": rec.n_outputs, "Ts_s": rec.dt_s, "input_names": list(rec.input_names),

@@ -36,7 +36,9 @@ coordinates):
    accepts (``k_c_reduction``, ``k_t_reduction`` report the factors; 1 when the rule's values pass).
 
 The integrators are forward Euler (``k T / (z - 1)``), so the controller is strictly proper and
-``D_f v`` needs no algebraic loop.
+``D_f v`` needs no algebraic loop; the tracking integrator leaks below ``LEAK_HZ`` (0.01 Hz, as every
+bench integrator) so that the controller has no pole at ``z = 1`` (the damping integrator has none:
+``D_f`` closes it).
 """
 from __future__ import annotations
 
@@ -46,6 +48,7 @@ import numpy as np
 
 from nanosim.design.architectures.common import (
     DT_S,
+    LEAK_HZ,
     LOOP_DELAY_SAMPLES,
     BenchDesign,
     analysis_grid_hz,
@@ -127,8 +130,9 @@ def irc_controller(G0_inv, feedthrough, k_c, k_t, dt: float = DT_S):
     n = G0_inv.shape[0]
     Df, kc, kt = (np.broadcast_to(np.asarray(a, float), (n,)) for a in (feedthrough, k_c, k_t))
     I = np.eye(n)
-    # x_c+ = x_c + dt k_c (y + D_f x_c + k_t x_t);  x_t+ = x_t + dt e
-    A = np.block([[I + dt * np.diag(kc * Df), dt * np.diag(kc * kt)], [np.zeros((n, n)), I]])
+    # x_c+ = x_c + dt k_c (y + D_f x_c + k_t x_t);  x_t+ = leak x_t + dt e
+    leak = np.exp(-2 * np.pi * LEAK_HZ * dt)        # the tracking integrator leaks below LEAK_HZ: no pole at z = 1
+    A = np.block([[I + dt * np.diag(kc * Df), dt * np.diag(kc * kt)], [np.zeros((n, n)), leak * I]])
     B = np.block([[np.zeros((n, n)), dt * np.diag(kc)], [dt * I, np.zeros((n, n))]])
     C = np.hstack([np.asarray(G0_inv, float), np.zeros((n, n))])
     return ct.ss(A, B, C, np.zeros((n, 2 * n)), dt)
