@@ -103,6 +103,10 @@ def test_budget_command_writes_its_run_folder(tmp_path):
     assert sum(doc["share_table"].values()) == pytest.approx(1.0, rel=1e-9)
     for f in ("budget.npz", "fig_budget_psd.png", "fig_budget_cas.png", "manifest.json"):
         assert (out / f).is_file(), f
+    from nanosim.pipeline.report import write_report
+    md, _ = write_report(out)
+    text = md.read_text()
+    assert "## Noise budget (Y axis)" in text and "](fig_budget_cas.png)" in text
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a zip")
     assert main(["budget", "--controller", str(bad), "--out", str(tmp_path / "r2")]) == 2

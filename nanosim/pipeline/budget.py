@@ -21,7 +21,7 @@ from nanosim import constants as C
 from nanosim.fileio import save_figure, write_json, write_npz
 from nanosim.pipeline import artifacts as A
 
-__all__ = ["run_budget", "BUDGET_UNITS"]
+__all__ = ["run_budget", "report_blocks", "BUDGET_UNITS"]
 
 BUDGET_UNITS = {
     "sigma_sensor_nm": "nm rms of the reading (sensor noise and ADC included), per source and total",
@@ -160,3 +160,28 @@ def run_budget(out_dir, controller_npz, *, axis: int = 0, simulate_s: float | No
                                   f"Cumulative amplitude spectrum, {name} table position", simulated=simulated),
                 out / A.FIG_BUDGET_CAS)
     return doc
+
+
+def report_blocks(run) -> list:
+    """The report's "Noise budget" section from ``budget.json`` (empty without it)."""
+    import json
+    p = Path(run) / A.BUDGET_JSON
+    if not p.is_file():
+        return []
+    doc = json.loads(p.read_text())
+    st, sy, share = doc["sigma_table_nm"], doc["sigma_sensor_nm"], doc["share_table"]
+    chk = doc.get("check") or {}
+    sim = chk.get("simulated_table_nm", {})
+    header = ["source", "table sigma (nm)", "share of the table variance", "reading sigma (nm)"]
+    if sim:
+        header.append(f"simulated table sigma (nm, {chk['record_s']:g} s)")
+    rows = []
+    for k in [*share, "total"]:
+        row = [k, f"{st[k]:.3g}", f"{share[k]:.3f}" if k in share else "1", f"{sy[k]:.3g}"]
+        if sim:
+            row.append(f"{sim[k]:.3g}" if k in sim else "")
+        rows.append(row)
+    return [("h", 2, f"Noise budget ({doc['axis']} axis)"),
+            ("p", f"`nanosim budget`: each source's spectrum through the closed loop with the linear twin, analytic "
+                  f"({doc['quantization']}). Controller: `{Path(doc['controller']).name}`."),
+            ("table", header, rows, None)]
