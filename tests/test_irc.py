@@ -2,7 +2,7 @@
 
 Analytic reference: the IRC loop on one mode, ``(k_c/s)|D_f|(s^2 + w_z^2)/(s^2 + w_1^2)``, closes to
 ``s^3 + g s^2 + w_1^2 s + g w_z^2 = 0`` with ``g = k_c |D_f|`` (the root locus of integral force
-feedback, Preumont, Vibration Control of Active Structures, Sec. 13.6); its complex pair's damping at
+feedback, Preumont, Vibration Control of Active Structures); its complex pair's damping at
 the design's gain is the value the twin's closed loop is held to. The maximum over ``g``,
 ``(w_1 - w_z)/(2 w_z)`` at ``g = w_1 sqrt(w_1/w_z)``, is checked against the cubic itself.
 """

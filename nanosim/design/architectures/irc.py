@@ -3,7 +3,7 @@
 Integral resonant control (Aphale, Fleming & Moheimani, "Integral resonant control of
 collocated smart structures", Smart Mater. Struct. 16 (2007) 439) with the outer tracking
 integrator of Fleming & Leang (*Design, Modeling and Control of Nanopositioning Systems*,
-Springer 2014, Ch. 9), decentralised: one SISO loop per axis in the decoupled coordinates
+Springer 2014), decentralised: one SISO loop per axis in the decoupled coordinates
 ``v = G(1) u`` (the plant ``P = G G(1)^-1`` is the identity at DC, the Jacobian decoupling of
 the paper's Eq. 2 applied through the identified static gain). Per axis ``i``::
 
@@ -22,8 +22,8 @@ coordinates):
 2. ``k_c`` for the maximum damping of the first mode: the loop ``(k_c/s)|D_f|(s^2 + w_z^2)/(s^2 + w_1^2)``
    has the root locus of integral force feedback, whose largest damping
    ``zeta_max = (w_1 - w_z) / (2 w_z)`` is reached at ``k_c |D_f| = w_1 sqrt(w_1 / w_z)``
-   (Preumont, *Vibration Control of Active Structures*, 3rd ed., Sec. 13.6; the IRC root
-   locus, Aphale et al. 2007, Sec. 3). ``w_z`` is the lowest lightly damped zero of
+   (Preumont, *Vibration Control of Active Structures*, the integral-force-feedback chapter; the IRC root
+   locus of Aphale et al. 2007). ``w_z`` is the lowest lightly damped zero of
    ``P_ii(s) + D_f`` (continuous, inverse Tustin of the identified model) below ``w_1``, the lowest
    mode whose peak in ``P_ii`` is at least a quarter of the axis's largest.
 3. ``k_t`` from the bandwidth rule of an integrator on a damped resonance: ``k_t / s`` around
@@ -31,9 +31,11 @@ coordinates):
    margin of ``GM = 2`` (6 dB), ``k_t = 2 zeta_1 w_1 / GM``, the closed-loop bandwidth about
    ``k_t / (2 pi)`` Hz. ``zeta_1`` is the damping of the first pair with the damping loops closed
    (the discrete loop with the identified model).
-4. Both gains are checked on the discrete loop as run (nominal stability, loop-at-a-time disk
-   margin ``>= 0.5``); a gain the check refuses is lowered by bisection to the largest one it
-   accepts (``k_c_reduction``, ``k_t_reduction`` report the factors; 1 when the rule's values pass).
+4. Both gains are checked on the discrete loop as run with the identified model (nominal stability,
+   loop-at-a-time disk margin ``>= 0.5``): ``k_c`` with the damping loops alone, ``k_t`` with the
+   whole loop. A gain the check refuses is lowered by bisection to the largest factor of it the
+   check accepts (``k_c_reduction``, ``k_t_reduction``; 1 when the rule's value passes). The sample
+   delay of the loop and the modes above the first are what the single-mode rule does not see.
 
 The integrators are forward Euler (``k T / (z - 1)``), so the controller is strictly proper and
 ``D_f v`` needs no algebraic loop; the tracking integrator leaks below ``LEAK_HZ`` (0.01 Hz, as every
