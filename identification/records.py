@@ -91,12 +91,6 @@ class Record:
         """Sampling frequency [Hz]."""
         return 1.0 / self.dt_s
 
-    def split(self, fraction: float = 0.7) -> tuple["Record", "Record"]:
-        """The first ``fraction`` of the samples (estimation) and the rest (validation)."""
-        k = int(round(fraction * self.n_samples))
-        part = lambda s: Record(self.u[s], self.y[s], self.dt_s, self.input_names, self.output_names, self.source)
-        return part(slice(0, k)), part(slice(k, None))
-
 
 def _pick(data: dict, names, where: str, what: str, required: bool = True):
     for n in names:
@@ -317,18 +311,17 @@ def load_record(path) -> Record:
 
 
 def load_state_space(path) -> tuple:
-    """``(A, B, C, D, Ts)`` from a ``.mat`` (v5 or v7.3) or ``.npz`` file with MATLAB's names.
+    """``(A, B, C, D, Ts)`` from a MATLAB ``.mat`` file (v5 or v7.3), as ``ss(A, B, C, D, Ts)`` names them.
 
     ``Ts`` [s] is the sample time of a discrete model, 0 for a continuous one (also ``dt``);
     a missing ``Ts`` is an error, as is a missing matrix, NaN/inf or inconsistent shapes.
     """
     p = Path(path)
     if not p.is_file():
-        raise FileNotFoundError(f"{p}: no such file (expected a .mat or .npz state space A, B, C, D, Ts)")
-    readers = {".npz": _read_npz, ".mat": _read_mat}
-    if p.suffix.lower() not in readers:
-        raise ValueError(f"{p}: expected a .mat or .npz state space, got the suffix {p.suffix!r}")
-    data = readers[p.suffix.lower()](p)
+        raise FileNotFoundError(f"{p}: no such file (expected a .mat state space A, B, C, D, Ts)")
+    if p.suffix.lower() != ".mat":
+        raise ValueError(f"{p}: expected a MATLAB .mat state space, got the suffix {p.suffix!r}")
+    data = _read_mat(p)
     missing = [k for k in "ABCD" if k not in data]
     if missing:
         found = ", ".join(sorted(data)) or "nothing"
