@@ -22,6 +22,7 @@ from .d2c import ContinuousModel, d2c, d2c_tustin, d2c_zoh
 from .fit import fit_percent
 from .freq import H1Estimate, frequency_response, h1_estimate
 from .modal import Modes, continuous_poles, modes_from_model
+from .records import Record, load_record, load_state_space, record_from_arrays
 from .residual import ResidualSpectrum, input_referred_residual
 from .signals import Excitation, Spectrum, paper_excitation, prbs, prbs_channels, prbs_hold_samples, signal_spectrum
 from .shared_poles import LIGHT_DAMPING, SharedPoles, refine_shared_poles, shared_pole_groups
@@ -60,4 +61,8 @@ __all__ = [
     "shared_pole_groups",
     "SharedPoles",
     "LIGHT_DAMPING",
+    "Record",
+    "load_record",
+    "record_from_arrays",
+    "load_state_space",
 ]

@@ -1,4 +1,4 @@
-"""``nanosim`` command line: modes, identify, design, characterize, pipeline, report, montecarlo, sweep, view.
+"""``nanosim`` command line: modes, identify, design, characterize, pipeline, report, montecarlo, sweep, budget, view.
 
 argparse -> config dataclasses (:mod:`nanosim.pipeline.config`, the only home
 of defaults) -> pipeline steps. Every user error prints one line and exits 2.
@@ -161,6 +161,19 @@ def _check_model(path) -> Path:
     return p
 
 
+def _check_model_mat(path) -> Path:
+    """``--model`` as a MATLAB state space ``A, B, C, D, Ts`` (discrete at the loop's period, or continuous)."""
+    import identification as ident
+    try:
+        *_, ts = ident.load_state_space(path)
+    except (OSError, ValueError) as exc:
+        raise ValueError(named_message("--model", exc)) from None
+    if ts > 0 and not math.isclose(ts, C.CONTROL_PERIOD_S, rel_tol=1e-9):
+        raise ValueError(f"--model: expected Ts = {C.CONTROL_PERIOD_S:g} s (the loop's period) or 0 (continuous), "
+                         f"got Ts = {ts!r} s in {str(path)!r}")
+    return Path(path).resolve()
+
+
 def _check_weights(path):
     """``--weights``: a JSON/TOML file of usable weights (design, pipeline and sweep share this check)."""
     if path is None:
@@ -221,11 +234,36 @@ def _bands_hz(args) -> tuple:
     return PAPER_PRBS_BANDS_HZ if args.paper_bands else C.DEFAULT_PRBS_BANDS_HZ
 
 
+def _cmd_identify_data(args) -> int:
+    """``nanosim identify --data FILE``: a model from the user's record (checked before any work)."""
+    import identification as ident
+    from nanosim.pipeline.identify import run_identify_data
+    from nanosim.pipeline.runfolder import staged_run
+
+    stage_only = [o for o, on in (("--ideal", args.ideal), ("--per-column-poles", not args.shared_poles),
+                                  ("--paper-bands", args.paper_bands), ("--mjcf", args.mjcf is not None)) if on]
+    if stage_only:
+        raise ValueError(f"--data: {stage_only[0]} applies to the simulated stage's experiments, not to a record")
+    try:
+        ident.load_record(args.data)
+    except (OSError, ValueError) as exc:
+        raise ValueError(named_message("--data", exc)) from None
+    t0 = time.perf_counter()
+    with staged_run(args.out, keep_existing=True) as stage:
+        doc = run_identify_data(args.data, stage, order=args.order, progress=_say)
+    print(f"identify done in {time.perf_counter() - t0:.1f} s: order {doc['order']}, validation fit "
+          f"{', '.join(f'{v:.1f} %' for v in doc['fit_percent'])}: {Path(args.out) / A.MODEL_NPZ}")
+    return 0
+
+
 def _cmd_identify(args) -> int:
     from nanosim.pipeline.run import step_identify
     from nanosim.pipeline.runfolder import staged_run
 
-    cfg = IdentifyConfig(seed=args.seed, order=args.order, ideal=args.ideal, shared_poles=args.shared_poles,
+    if args.data is not None:
+        return _cmd_identify_data(args)
+    order = PAPER_IDENTIFIED_ORDER_PER_COLUMN if args.order is None else args.order
+    cfg = IdentifyConfig(seed=args.seed, order=order, ideal=args.ideal, shared_poles=args.shared_poles,
                          bands_hz=_bands_hz(args))
     _check_mjcf(args)
     t0 = time.perf_counter()
@@ -241,10 +279,14 @@ def _cmd_design(args) -> int:
     from nanosim.pipeline.runfolder import staged_run
 
     cfg = _design_config(args)
-    model = _check_model(args.model)
+    mat = Path(args.model).suffix.lower() == ".mat"
+    model = _check_model_mat(args.model) if mat else _check_model(args.model)
     _check_mjcf(args)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True) as stage:
+        if mat:                         # the MATLAB state space as a model.npz in the run folder
+            from nanosim.pipeline.identify import model_npz_from_mat
+            model = model_npz_from_mat(model, Path(stage) / A.MODEL_NPZ)
         step_design(stage, cfg, model_npz=model, mjcf=args.mjcf)
     print(f"design done in {time.perf_counter() - t0:.1f} s: {Path(args.out) / A.CONTROLLER_NPZ}")
     return 0
@@ -384,6 +426,23 @@ def _cmd_sweep(args) -> int:
     return 0
 
 
+def _cmd_budget(args) -> int:
+    from nanosim.pipeline.budget import run_budget
+    from nanosim.pipeline.runfolder import staged_run
+
+    controller = _check_controller(args.controller)         # validate before any work
+    _check_mjcf(args)
+    t0 = time.perf_counter()
+    with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
+        doc = run_budget(stage, controller, axis=C.AXES.index(args.axis), simulate_s=args.simulate or None,
+                         seed=args.seed, mjcf=args.mjcf, progress=_say)
+    chk = doc.get("check")
+    extra = (f"; simulated {chk['simulated_table_nm']['total']:.3f} nm ({args.simulate:g} s records)" if chk else "")
+    print(f"budget done in {time.perf_counter() - t0:.1f} s: {args.axis} table sigma "
+          f"{doc['sigma_table_nm']['total']:.3f} nm (analytic){extra}: {Path(args.out) / A.BUDGET_JSON}")
+    return 0
+
+
 def _cmd_compare(args) -> int:
     from nanosim.pipeline.compare import check_controllers, check_only, run_compare
     from nanosim.pipeline.runfolder import staged_run
@@ -475,12 +534,18 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--fmax", type=_float_in(0.0, 1e6, lo_open=True), default=MODES_LIST_MAX_HZ,
                    help="list modes below this frequency (Hz, > 0)")
     m.set_defaults(func=_cmd_modes)
-    i = sub.add_parser("identify", help="identify the 3x3 model from simulated experiments")
+    i = sub.add_parser("identify", help="identify the 3x3 model from simulated experiments, or a model from "
+                                        "your own record (--data)")
     i.add_argument("--out", required=True, type=out, help="run folder for artifacts")
+    i.add_argument("--data", default=None, type=_file, metavar="FILE",
+                   help="identify from this record instead of the simulated stage: .npz/.mat (v5, v7.3) with u "
+                        "(samples x inputs), y (samples x outputs) and Ts (s), or .csv with columns t, u1..un, "
+                        "y1..ym")
     i.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
-    i.add_argument("--order", type=_int_at_least(0), default=PAPER_IDENTIFIED_ORDER_PER_COLUMN,
+    i.add_argument("--order", type=_int_at_least(0), default=None,
                    help=f"states per 3x1 column (default {PAPER_IDENTIFIED_ORDER_PER_COLUMN}, the paper's; "
-                        "0: choose from the singular values)")
+                        "0: choose from the singular values); with --data the model's order (default: from the "
+                        "singular values)")
     i.add_argument("--ideal", action="store_true", help="every electromechanical effect off")
     i.add_argument("--per-column-poles", dest="shared_poles", action="store_false",
                    help="keep each column's own estimate of every mode, as the paper (default: the modes the "
@@ -491,7 +556,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--mjcf", default=None, type=_file)
     i.set_defaults(func=_cmd_identify)
     d = sub.add_parser("design", help="reduce the model and synthesize the H-infinity controller")
-    d.add_argument("--model", required=True, type=_file, help="model.npz from 'nanosim identify'")
+    d.add_argument("--model", required=True, type=_file,
+                   help="model.npz from 'nanosim identify', or a MATLAB .mat state space A, B, C, D, Ts")
     d.add_argument("--out", required=True, type=out)
     _add_design_arguments(d)
     d.add_argument("--mjcf", default=None, type=_file)
@@ -612,6 +678,18 @@ def build_parser() -> argparse.ArgumentParser:
                          "hours)")
     sc.add_argument("--mjcf", default=None, type=_file)
     sc.set_defaults(func=_cmd_scan)
+    bu = sub.add_parser("budget", help="closed-loop noise budget of a controller: each source's spectrum through "
+                                       "the loop's transfer functions (analytic), stacked PSD and cumulative "
+                                       "amplitude spectrum")
+    bu.add_argument("--controller", required=True, type=_file, help="controller.npz from 'nanosim design'")
+    bu.add_argument("--out", required=True, type=out, help="run folder (budget.json, budget.npz, figures)")
+    bu.add_argument("--axis", choices=C.AXES, default="X", help="axis of the budget (default X)")
+    bu.add_argument("--simulate", type=_float_in(0.0, 600.0), default=0.0, metavar="SECONDS",
+                    help="also simulate the budget on the linear twin with records of this length (one source at "
+                         "a time and all together) and compare (default 0: analytic only)")
+    bu.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
+    bu.add_argument("--mjcf", default=None, type=_file)
+    bu.set_defaults(func=_cmd_budget)
     from nanosim.viewer import add_view_arguments, run_view
     v = sub.add_parser("view", help="browser 3D view (viser)")
     add_view_arguments(v)

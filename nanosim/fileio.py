@@ -129,13 +129,22 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
     return path
 
 
+_MAT_HEADER = b"MATLAB 5.0 MAT-file, Platform: posix, written by nanosim".ljust(116, b" ")
+
+
 def write_mat(path: str | os.PathLike, data: Mapping[str, Any]) -> Path:
-    """Write a MATLAB ``.mat`` file (``scipy.io.savemat``, compressed, 1-D arrays as rows) atomically."""
+    """Write a MATLAB ``.mat`` file (``scipy.io.savemat``, compressed, 1-D arrays as rows) atomically.
+
+    The 116-byte descriptive header, where scipy writes the creation time, holds a fixed text instead,
+    so that the same data give the same bytes (MATLAB reads the header as a comment).
+    """
     from scipy.io import savemat
 
     path, tmp = _atomic_target(path, ".mat")
     try:
         savemat(tmp, data, do_compression=True, oned_as="row")
+        with open(tmp, "r+b") as fh:
+            fh.write(_MAT_HEADER)
         _publish(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)

@@ -29,7 +29,8 @@ __all__ = ["Artifact", "FIGURES", "figure", "MODES_JSON", "MODES_DIR", "MODEL_NP
            "ABLATION_MD", "ABLATION_PARTIAL_JSON", "MONTECARLO_JSON", "TOLERANCES_JSON", "SPEC_JSON", "SUMMARY_JSON",
            "MC_SAMPLES_DIR", "MC_CROSSCHECK_DIR", "MC_SPREAD_DIR", "mc_sample_json", "FIG_MC_HISTOGRAMS",
            "FIG_MC_SENSITIVITY", "FIG_MC_CROSSCHECK", "MC_BENCH_JSON", "FIG_MC_BENCH", "SWEEP_JSON",
-           "SWEEP_POINTS_DIR", "sweep_point_json", "FIG_SWEEP_PARETO", "TIMINGS_JSON"]
+           "SWEEP_POINTS_DIR", "sweep_point_json", "FIG_SWEEP_PARETO", "TIMINGS_JSON", "BUDGET_JSON", "BUDGET_NPZ",
+           "FIG_BUDGET_PSD", "FIG_BUDGET_CAS", "MODEL_MAT", "CONTROLLER_MAT"]
 
 
 @dataclass(frozen=True)
@@ -108,6 +109,14 @@ MC_BENCH_JSON = "montecarlo_bench.json"     # the plan
 FIG_MC_BENCH = "fig_mc_bench.png"
 # nanosim sweep (nanosim.pipeline.sweep)
 SWEEP_JSON = "sweep.json"
+# nanosim budget (nanosim.pipeline.budget)
+BUDGET_JSON = "budget.json"
+BUDGET_NPZ = "budget.npz"
+FIG_BUDGET_PSD = "fig_budget_psd.png"
+FIG_BUDGET_CAS = "fig_budget_cas.png"
+# beside model.npz and controller.npz (nanosim.pipeline.export)
+MODEL_MAT = "model.mat"
+CONTROLLER_MAT = "controller.mat"
 SWEEP_POINTS_DIR = "points"
 FIG_SWEEP_PARETO = "fig_sweep_pareto.png"
 
@@ -186,6 +195,8 @@ FIGURES: tuple[Artifact, ...] = (
     Artifact(FIG18_BANDWIDTH_STEP, "characterize", "Measured bandwidth and 2 um step (Fig. 18)"),
     Artifact(FIG19_TRACKING, "characterize", "Tracking (Fig. 19)"),
     Artifact(FIG20_CONTOURING, "characterize", "Contouring (Fig. 20)"),
+    Artifact(FIG_BUDGET_PSD, "budget", "Noise budget: stacked PSD of the table position per source (analytic)"),
+    Artifact(FIG_BUDGET_CAS, "budget", "Noise budget: cumulative amplitude spectrum per source"),
 )
 
 

@@ -38,6 +38,7 @@ from nanosim.experiments.loop import FS, SETTLE_S, UM_PER_V, run_closed_loop
 from nanosim.experiments.registry import ExperimentContext
 from nanosim.fileio import save_figure, write_json, write_npz
 from nanosim.pipeline import artifacts as A
+from nanosim.pipeline.export import write_controller_exports
 from nanosim.pipeline.config import CompareConfig
 from nanosim.pipeline.scorecard import scorecard, write_scorecard
 from nanosim.pipeline.runfolder import run_relative
@@ -202,6 +203,7 @@ def _save_controller(spec: ControllerSpec, path: Path) -> None:
         extra["tuning_rule"] = np.array(spec.design.tuning_rule)
     write_npz(path, Akd=c.Akd, Bkd=c.Bkd, Ckd=c.Ckd, Dkd=c.Dkd, dt=np.float64(c.dt), n_error=np.int64(c.n_error),
               name=np.array(spec.name), **extra)
+    write_controller_exports(path, c.Akd, c.Bkd, c.Ckd, c.Dkd, c.dt, c.n_error)
 
 
 # =====================================================================================

@@ -51,6 +51,7 @@ from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES, STAGE_UNCERTAINT
 from nanosim.design.weights import Weights
 from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
+from nanosim.pipeline.export import mat_beside, write_controller_exports, write_state_space_mat
 from nanosim.pipeline.config import DesignConfig
 from nanosim.pipeline.timings import record_timings
 from nanosim.plots.design import (
@@ -248,6 +249,7 @@ def _export_lqg(out: Path, G, dt: float, loop_delay: int, units, say,
     fileio.write_npz(out / A.CONTROLLER_NPZ, Akd=Akd, Bkd=Bkd, Ckd=Ckd, Dkd=Dkd, dt=np.float64(dt),
                      n_error=np.int64(bd.n_error), units=lqg_units, sign_convention=np.array(SIGN_CONVENTION),
                      method=np.array("lqg"), tuning_rule=np.array(bd.tuning_rule))
+    write_controller_exports(out / A.CONTROLLER_NPZ, Akd, Bkd, Ckd, Dkd, dt, bd.n_error)
     p = bd.parameters
     say(f"exported controller: {architecture} ({bd.K.nstates} states), predicted multiloop disk margin "
         f"{p['predicted_disk_margin']['multiloop']:.3f} (at the top of the piezo's gain range "
@@ -397,6 +399,9 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
                      Akd=Kd.A, Bkd=Kd.B, Ckd=Kd.C, Dkd=Kd.D, dt=np.float64(dt), gamma=np.float64(d.gamma),
                      n_error=np.int64(ny), units=units, sign_convention=np.array(SIGN_CONVENTION),
                      method=np.array(disc.method))
+    write_controller_exports(out / A.CONTROLLER_NPZ, Kd.A, Kd.B, Kd.C, Kd.D, dt, ny)
+    write_state_space_mat(mat_beside(out / A.REDUCED_MODEL_NPZ), red.G_reduced.A, red.G_reduced.B, red.G_reduced.C,
+                          red.G_reduced.D, 0.0, units=UNITS["plant_G"])
     fileio.write_npz(out / A.REDUCED_MODEL_NPZ, A=red.G_reduced.A, B=red.G_reduced.B, C=red.G_reduced.C,
                      D=red.G_reduced.D, hankel_sv=red.hankel_sv, units=np.array(UNITS["plant_G"]))
     mat = {"G_A": G_full.A, "G_B": G_full.B, "G_C": G_full.C, "G_D": G_full.D,

@@ -26,7 +26,8 @@ from nanosim.pipeline.config import IdentifyConfig
 from nanosim.plots.identify import (figure_bode_grid, figure_parametric_vs_h1, figure_singular_values,
                                     figure_time_fit)
 
-__all__ = ["save_model", "identify_json", "residual_bands", "run_identify", "RESIDUAL_BANDS_HZ"]
+__all__ = ["save_model", "identify_json", "residual_bands", "run_identify", "RESIDUAL_BANDS_HZ", "run_identify_data",
+           "model_npz_from_mat", "save_model_mat"]
 
 # where the input-disturbance model of a design (the LQG's hysteresis/creep state) can be checked: below the
 # first resonance (~175 Hz), where the model's gain is large and the gauge noise referred to the input small
@@ -47,8 +48,9 @@ OPERATING_POINTS_UNITS = {
 
 
 def save_model(path, result: IdentifiedStage) -> Path:
-    """``model.npz``: continuous A..D, discrete Ad..Dd, dt, names and units."""
+    """``model.npz``: continuous A..D, discrete Ad..Dd, dt, names and units; and ``model.mat`` beside it."""
     sc, sd = result.sysc, result.sysd
+    save_model_mat(Path(path).with_suffix(".mat"), sd, sc, ACTS, AXES, "controller V -> sensor V (5 um/V)")
     return write_npz(path, A=sc.A, B=sc.B, C=sc.C, D=sc.D, Ad=sd.A, Bd=sd.B, Cd=sd.C, Dd=sd.D, dt=sd.dt,
                      input_names=np.array(ACTS), output_names=np.array(AXES),
                      input_units=np.array("controller V"), output_units=np.array("sensor V (5 um/V)"),
@@ -174,3 +176,128 @@ def run_identify(out_dir, config: IdentifyConfig | None = None, *, model=None, t
                     out / A.FIG07_OPERATING_POINTS)
     save_figure(figure_singular_values(main), out / A.FIG_SINGULAR_VALUES)
     return main
+
+
+# --- a user's record: nanosim identify --data FILE ------------------------------------------
+DATA_VALIDATION_FRACTION = 0.3      # the last 30 % of the record is the validation record
+DATA_MAX_ORDER = 40
+
+
+def save_model_mat(path, sysd, sysc, input_names, output_names, units: str) -> Path:
+    """``model.mat`` beside ``model.npz``: the discrete model as MATLAB's ``A, B, C, D, Ts`` and the continuous
+    one as ``Ac, Bc, Cc, Dc`` (``ss(A, B, C, D, Ts)`` and ``ss(Ac, Bc, Cc, Dc)`` in MATLAB).
+    """
+    from nanosim.pipeline.export import write_state_space_mat
+    return write_state_space_mat(path, sysd.A, sysd.B, sysd.C, sysd.D, float(sysd.dt), input_names=input_names,
+                                 output_names=output_names, units=units, Ac=np.asarray(sysc.A),
+                                 Bc=np.asarray(sysc.B), Cc=np.asarray(sysc.C), Dc=np.asarray(sysc.D))
+
+
+def run_identify_data(data_path, out_dir, *, order: int | None = None, progress=None) -> dict:
+    """``nanosim identify --data FILE``: a model from a user's record, with the stage's files and figures.
+
+    The record (:func:`identification.load_record`: ``.npz``, ``.mat`` v5/v7.3 or ``.csv``) is centred
+    (each channel's mean removed: the operating point) and split in time: the first 70 % estimate
+    one MIMO model by PO-MOESP subspace identification (:func:`identification.subspace_id`, all
+    inputs at once, so every mode is one pole of the one model: the shared-pole re-estimation of
+    the stage's column-by-column records has nothing to merge), the last 30 % validate it (fit
+    factor per output, :func:`identification.fit_percent`). Continuous time by the inverse Tustin
+    transform (:func:`identification.d2c`). Writes ``model.npz`` and ``model.mat`` (same arrays as the
+    stage's), ``identify.json`` (fit, order, modes, DC gain, the record's description, units) and the
+    time-fit, frequency-response (against the H1 estimate) and singular-value figures.
+
+    Parameters
+    ----------
+    data_path : path
+        The record.
+    out_dir : path
+        Run folder (staged by the caller).
+    order : int, optional
+        Model order; None or 0: chosen from the singular values (up to :data:`DATA_MAX_ORDER`).
+    progress : callable, optional
+        ``progress(message)`` after each step.
+
+    Returns
+    -------
+    dict
+        The content of ``identify.json``.
+    """
+    import warnings
+
+    from nanosim.design.lti import single_threaded_blas
+    from nanosim.plots.records import figure_record_bode, figure_record_singular_values, figure_record_time_fit
+
+    rec = ident.load_record(data_path)
+    out = Path(out_dir)
+    if progress:
+        progress(f"read {rec.n_samples} samples, {rec.n_inputs} inputs, {rec.n_outputs} outputs, "
+                 f"Ts = {rec.dt_s:g} s")
+    u_mean, y_mean = rec.u.mean(axis=0), rec.y.mean(axis=0)
+    u, y = rec.u - u_mean, rec.y - y_mean
+    k = int(round((1.0 - DATA_VALIDATION_FRACTION) * rec.n_samples))
+    fs = rec.fs
+    with single_threaded_blas(), warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)        # an order at max_order is reported in identify.json
+        model = ident.subspace_id(y[:k], u[:k], order=order or None, fs=fs, max_order=DATA_MAX_ORDER,
+                                  enforce_stability=True, input_names=rec.input_names,
+                                  output_names=rec.output_names)
+        x0 = ident.estimate_x0(model, y[k:], u[k:])
+        yhat = ident.simulate(model, u[k:], x0)
+    fit = np.atleast_1d(ident.fit_percent(y[k:], yhat))
+    if progress:
+        progress(f"identified order {model.order}; validation fit {', '.join(f'{v:.1f} %' for v in fit)}")
+    sysd = model.to_statespace()
+    sysc = ident.d2c(sysd, method="tustin")
+    modes = ident.modes_from_model(model.A, model.dt_s)
+    units = "the record's input units -> the record's output units"
+    write_npz(out / A.MODEL_NPZ, A=sysc.A, B=sysc.B, C=sysc.C, D=sysc.D, Ad=sysd.A, Bd=sysd.B, Cd=sysd.C,
+              Dd=sysd.D, dt=np.float64(rec.dt_s), input_names=np.array(rec.input_names),
+              output_names=np.array(rec.output_names), input_units=np.array("the record's units"),
+              output_units=np.array("the record's units"), order_per_column=np.array([model.order]))
+    save_model_mat(out / A.MODEL_MAT, sysd, sysc, rec.input_names, rec.output_names, units)
+    doc = {
+        "source": {"file": str(data_path), "n_samples": rec.n_samples, "n_inputs": rec.n_inputs,
+                   "n_outputs": rec.n_outputs, "Ts_s": rec.dt_s, "input_names": list(rec.input_names),
+                   "output_names": list(rec.output_names),
+                   "input_mean": u_mean.tolist(), "output_mean": y_mean.tolist()},
+        "fit_percent": fit.round(3).tolist(), "fit_rows": list(rec.output_names),
+        "order": int(model.order), "order_chosen": "given" if order else "singular values",
+        "modes_hz": [{"freq_hz": float(f), "damping_ratio": float(z)} for f, z in zip(modes.freq_hz, modes.damping)],
+        "dc_gain": np.real(model.dc_gain()).round(6).tolist(),
+        "settings": {"method": "PO-MOESP subspace identification of one MIMO model from all inputs at once, "
+                               "enforce_stability, D estimated",
+                     "estimation": f"first {100 * (1 - DATA_VALIDATION_FRACTION):g} % of the record",
+                     "validation": f"last {100 * DATA_VALIDATION_FRACTION:g} % of the record",
+                     "centring": "each channel's mean over the record removed (input_mean, output_mean)",
+                     "continuous": "inverse Tustin transform of the discrete model",
+                     "max_order": DATA_MAX_ORDER},
+        "units": {"fit_percent": "%", "modes_hz": "Hz (freq_hz), damping_ratio dimensionless", "Ts_s": "s",
+                  "dc_gain": "the record's output units per input unit", "input_mean": "the record's input units",
+                  "output_mean": "the record's output units"},
+    }
+    write_json(out / A.IDENTIFY_JSON, doc)
+    save_figure(figure_record_time_fit(u[k:], y[k:], yhat, rec.dt_s, fit, rec.output_names, rec.input_names),
+                out / A.FIG04_TIME_DOMAIN_FIT)
+    save_figure(figure_record_bode(model, u[:k], y[:k], rec.dt_s, rec.output_names, rec.input_names),
+                out / A.FIG05_IDENTIFIED_FREQUENCY_RESPONSE)
+    save_figure(figure_record_singular_values(model), out / A.FIG_SINGULAR_VALUES)
+    return doc
+
+
+def model_npz_from_mat(mat_path, out_npz, dt: float = C.CONTROL_PERIOD_S) -> Path:
+    """A ``model.npz`` (continuous and discrete arrays) from a MATLAB state space ``A, B, C, D, Ts``.
+
+    ``Ts > 0``: the discrete model as it is, its continuous twin by the inverse Tustin transform (as
+    ``nanosim identify`` does); ``Ts = 0``: the continuous model, discretized by Tustin at ``dt``.
+    """
+    import control as ct
+
+    Am, Bm, Cm, Dm, ts = ident.load_state_space(mat_path)
+    if ts > 0:
+        sysd = ct.ss(Am, Bm, Cm, Dm, ts)
+        sysc = ident.d2c(sysd, method="tustin")
+    else:
+        sysc = ct.ss(Am, Bm, Cm, Dm)
+        sysd = ct.c2d(sysc, dt, "tustin")
+    return write_npz(out_npz, A=sysc.A, B=sysc.B, C=sysc.C, D=sysc.D, Ad=sysd.A, Bd=sysd.B, Cd=sysd.C, Dd=sysd.D,
+                     dt=np.float64(sysd.dt), source=np.array(str(mat_path)))

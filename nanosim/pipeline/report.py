@@ -412,6 +412,8 @@ def _blocks(run: Path):
                  [[lab, _fmt(a), _fmt(b), _diff(b, a)] for lab, a, b in twin_rows], None)]
     out += _robustness_blocks(run)
     out += _scan_blocks(run)
+    from nanosim.pipeline.budget import report_blocks as budget_blocks
+    out += budget_blocks(run)
     out += _stage_v2_blocks(run)
     out.append(("h", 2, "Figures"))
     out += [("fig", title, rel) for title, rel in _figures(run)]

@@ -40,12 +40,16 @@ def step_modes(out: Path, mjcf=None) -> None:
 
 
 def write_twin_npz(out: Path, mjcf=None) -> Path:
-    """``twin.npz``: MuJoCo's linearization of the ideal stage (controller V -> sensor V)."""
+    """``twin.npz`` (and ``twin.mat``): MuJoCo's linearization of the ideal stage (controller V -> sensor V)."""
     from nanosim.plant.linearize import linearize
     from nanosim.plant.stage import Stage, StageConfig
 
+    from nanosim.pipeline.identify import save_model_mat
+
     tw = linearize(Stage(config=StageConfig.ideal(), mjcf=mjcf))
     s = tw.sys_V
+    save_model_mat((out / A.TWIN_NPZ).with_suffix(".mat"), tw.sysd_V, s, ("A", "B", "C"), ("X", "Y", "Z"),
+                   "controller V -> sensor V (5 um/V); ideal MuJoCo stage, linear piezo")
     return write_npz(out / A.TWIN_NPZ, A=s.A, B=s.B, C=s.C, D=s.D, Ad=tw.sysd_V.A, Bd=tw.sysd_V.B,
                      Cd=tw.sysd_V.C, Dd=tw.sysd_V.D, dt=tw.dt_s,
                      units=np.array("controller V -> sensor V (5 um/V); ideal MuJoCo stage, linear piezo"))

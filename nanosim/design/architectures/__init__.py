@@ -1,4 +1,4 @@
-"""The controller bench: nine designs, each a pure function of the identified model.
+"""The controller bench: ten designs, each a pure function of the identified model.
 
 ``design_X(G, *, dt=250e-6, delay_samples=0, ...) -> BenchDesign`` (a discrete
 ``Akd, Bkd, Ckd, Dkd, dt, n_error`` controller with its tuning rule), for
@@ -13,7 +13,8 @@
   robust over the uncertainty set; ``lqg-nominal`` -- the same designed on the identified modes (not robust
   to one extra sample of delay with the modes 3 % higher); ``lqg-gain-range`` -- the robust lqg with its disk
   margin required at both ends of the set's piezo-gain range (the identified slope after a reversal and the
-  nominal slope of a monotone move), designed at the range's top.
+  nominal slope of a monotone move), designed at the range's top;
+* ``irc`` (:mod:`.irc`) -- integral resonant control per decoupled axis plus integral tracking.
 
 Outside the scored bench (:data:`DESIGN_RULES`, which :func:`design` accepts too): ``lqg-bandwidth`` -- the robust
 lqg at the smallest control weight (from 1/300 of its own up) at which its pick meets every check, without the
@@ -74,6 +75,11 @@ def _lqg_gain_range(G, **kw):
     return dataclasses.replace(design_lqg(G, gain_range_margin=True, **kw), name="lqg-gain-range")
 
 
+def _irc(G, **kw):
+    from nanosim.design.architectures.irc import design_irc
+    return design_irc(G, **kw)
+
+
 def _feedforward(G, **kw):
     from nanosim.design.architectures.feedforward import design_feedforward
     return design_feedforward(G, **kw)
@@ -90,6 +96,7 @@ BENCH: dict[str, Callable[..., BenchDesign]] = {
     "lqg": _lqg,
     "lqg-nominal": _lqg_nominal,
     "lqg-gain-range": _lqg_gain_range,
+    "irc": _irc,
 }
 
 
