@@ -71,10 +71,12 @@ Parameters and their derivation
     scale, calibrated by least squares to the paper's Fig. 14 loop (15 %
     output / 14 % input hysteresis, 0 -> 1.65 -> 0 controller V = 0 -> 33 ->
     0 piezo V in 2 s, from the virgin state, with the activation below). All
-    weights are then normalised so that the athermal (instantaneous) virgin
-    secant ``h(33 V) / 33 V`` is 1 (``normalize_loop_slope``); creep adds to
-    it. The tangent gain right after a reversal is ``w0``
-    (:meth:`PiezoConfig.small_signal_gain`).
+    weights are then normalised so that the secant of that loop's rising
+    branch, ``h(33 V) / 33 V`` at the end of the 1 s ramp from rest (creep
+    during the ramp included), is 1 (``normalize_loop_slope``): the Fig. 14
+    travel is then the mechanics' calibrated static gain times 1.65 V, as
+    ``STATIC_GAIN_SCALE_UM_PER_V`` assumes. The tangent gain right after a
+    reversal is ``w0`` (:meth:`PiezoConfig.small_signal_gain`).
 
     Activation voltage ``V_a``: from the published creep rate. PI's law for
     the motion after a step is ``x(t) = x(t0) (1 + gamma log10(t / t0))``,
@@ -174,6 +176,9 @@ _DENSITY_WEIGHTS = (0.02386, 0.02837, 0.03684, 0.04286, 0.04623, 0.05065,
 _FIG14_WEIGHT_SCALE = 1.315
 _DEFAULT_WEIGHTS = tuple(round(_FIG14_WEIGHT_SCALE * w, 6) for w in _DENSITY_WEIGHTS)
 _DEFAULT_LINEAR_WEIGHT = 0.7524
+
+# Rise time of the loop-slope normalisation ramp: Fig. 14's 2 s triangle rises in 1 s.
+DEFAULT_LOOP_RISE_S = 1.0
 
 # Creep-rate window of PI's law (t0 = 0.1 s) over which the activation voltage is derived.
 CREEP_WINDOW_S = (0.1, 10.0)
@@ -324,6 +329,18 @@ def _activation_cached(per_decade, step_V, r, w0, w, tau_min_s):
     return float(brentq(excess, grid[k - 1], grid[k], xtol=1e-12, rtol=1e-12))
 
 
+@lru_cache(maxsize=64)
+def _ramp_outputs_cached(r, va, nu, peak, rise_s, dt_s):
+    """Operator outputs at the last sample of a linear 0 -> peak ramp of rise_s from rest (clamped, as output)."""
+    ra = np.ascontiguousarray(r, dtype=float)
+    n = max(1, int(round(rise_s / dt_s)))
+    v = np.linspace(0.0, peak, n + 1)
+    z = np.zeros((1, ra.size))
+    om = np.ascontiguousarray(-np.expm1(-relaxation_rates(ra, va, nu) * dt_s))
+    play_run(v[:n, None].copy(), z, ra, np.zeros(ra.size), om, np.array([0.0, va]), np.empty((n, 1)))
+    return tuple(float(x) for x in np.minimum(np.maximum(z[0], peak - ra), peak + ra))
+
+
 def activation_voltage_for_creep(per_decade: float, step_V: float, thresholds_V, linear_weight: float, weights,
                                  tau_min_s: float = C.CREEP_TAU_MIN_S) -> float:
     """Activation voltage ``V_a`` whose open-loop creep after a step is ``per_decade`` (PI's law, 0.1-10 s).
@@ -392,10 +409,14 @@ class PiezoConfig:
     pi_linear_weight : float
         Weight ``w0`` of the linear (zero-threshold) term, > 0.
     normalize_loop_slope : bool
-        Rescale ``w0`` and ``w_i`` so that the athermal virgin-curve secant
-        ``h(loop_peak_V) / loop_peak_V`` equals 1.
+        Rescale ``w0`` and ``w_i`` so that the secant ``h(loop_peak_V) /
+        loop_peak_V`` at the end of a ramp from rest of ``loop_rise_s`` equals 1
+        (:meth:`loop_secant`; without thermal activation, the virgin curve's).
     loop_peak_V : float
         Peak piezo voltage of the normalisation loop (33 V = 1.65 controller V).
+    loop_rise_s : float
+        Duration of the normalisation ramp, s (> 0; 1 s: the rising branch of
+        Fig. 14's 2 s loop, ``nanosim.experiments.hysteresis``).
     creep : bool
         Creep on. With hysteresis and ``creep_model="thermal"``: thermally
         activated operators; off: athermal operators (PI, ``V_a -> 0``).
@@ -433,6 +454,7 @@ class PiezoConfig:
     pi_linear_weight: float = _DEFAULT_LINEAR_WEIGHT
     normalize_loop_slope: bool = True
     loop_peak_V: float = DEFAULT_LOOP_PEAK_PIEZO_V
+    loop_rise_s: float = DEFAULT_LOOP_RISE_S
     creep: bool = True
     creep_model: str = "thermal"
     activation_V: float | None = None
@@ -460,6 +482,9 @@ class PiezoConfig:
             raise ValueError(f"loop_peak_V: expected a finite value > 0, got {self.loop_peak_V}")
         if self.creep_model not in CREEP_MODELS:
             raise ValueError(f"creep_model: expected one of {', '.join(CREEP_MODELS)}, got {self.creep_model!r}")
+        rise = _optional_positive("loop_rise_s", self.loop_rise_s)
+        if rise is None:
+            raise ValueError("loop_rise_s: expected a finite value > 0, got None")
         va = _optional_positive("activation_V", self.activation_V)
         nu = _optional_positive("attempt_rate_V_per_s", self.attempt_rate_V_per_s)
         gamma = _optional_positive("creep_per_decade", self.creep_per_decade)
@@ -475,7 +500,8 @@ class PiezoConfig:
         if any(x <= 0 for x in tau):
             raise ValueError("creep_time_constants_s: expected values > 0")
         for name, value in (("pi_thresholds_V", r), ("pi_weights", w), ("pi_linear_weight", w0),
-                            ("loop_peak_V", peak), ("activation_V", va), ("attempt_rate_V_per_s", nu),
+                            ("loop_peak_V", peak), ("loop_rise_s", rise), ("activation_V", va),
+                            ("attempt_rate_V_per_s", nu),
                             ("creep_per_decade", gamma), ("creep_reference_V", ref), ("creep_gains", c),
                             ("creep_time_constants_s", tau)):
             object.__setattr__(self, name, value)
@@ -525,24 +551,41 @@ class PiezoConfig:
     # -- derived quantities -------------------------------------------------
     def hysteresis_weights(self) -> tuple[float, np.ndarray]:
         """Effective ``(w0, w)`` after the optional loop-slope normalisation."""
-        r = np.asarray(self.pi_thresholds_V, dtype=float)
         w = np.asarray(self.pi_weights, dtype=float)
         w0 = self.pi_linear_weight
         if self.normalize_loop_slope:
             peak = self.loop_peak_V
-            scale = peak / (w0 * peak + float(np.maximum(peak - r, 0.0) @ w))
+            scale = peak / (w0 * peak + float(self._ramp_outputs() @ w))
             w0, w = w0 * scale, w * scale
         return float(w0), w
+
+    def _ramp_outputs(self) -> np.ndarray:
+        """Operator outputs at the end of the normalisation ramp (0 -> loop_peak_V in loop_rise_s, from rest)."""
+        r = np.asarray(self.pi_thresholds_V, dtype=float)
+        va, nu = self.activation()
+        if va == 0.0:
+            return np.maximum(self.loop_peak_V - r, 0.0)
+        return np.asarray(_ramp_outputs_cached(tuple(r), va, nu, self.loop_peak_V, self.loop_rise_s,
+                                               C.CONTROL_PERIOD_S))
+
+    def loop_secant(self) -> float:
+        """``h(loop_peak_V) / loop_peak_V`` at the end of the normalisation ramp.
+
+        1 when normalised; 1 without hysteresis.
+        """
+        if not self.hysteresis:
+            return 1.0
+        w0, w = self.hysteresis_weights()
+        return float((w0 * self.loop_peak_V + self._ramp_outputs() @ w) / self.loop_peak_V)
 
     def activation(self) -> tuple[float, float]:
         """``(V_a, nu)``: activation voltage (V) and attempt rate (V/s); ``(0, 0)`` unless :attr:`thermal`."""
         if not self.thermal:
             return 0.0, 0.0
         va = self.activation_V
-        if va is None:
-            w0, w = self.hysteresis_weights()
+        if va is None:       # the relative creep does not depend on a common scale of w0 and w: raw weights
             va = activation_voltage_for_creep(self.creep_per_decade, self.creep_reference_V, self.pi_thresholds_V,
-                                              w0, w, C.CREEP_TAU_MIN_S)
+                                              self.pi_linear_weight, self.pi_weights, C.CREEP_TAU_MIN_S)
         nu = self.attempt_rate_V_per_s if self.attempt_rate_V_per_s is not None else va / C.CREEP_TAU_MIN_S
         return float(va), float(nu)
 
@@ -582,7 +625,8 @@ class PiezoConfig:
 
         The instantaneous slope of a ``0 -> peak`` move from rest (hysteresis
         only, before any creep); equals 1 at ``loop_peak_V`` when
-        ``normalize_loop_slope``. Returns 1 if hysteresis is off.
+        ``normalize_loop_slope`` and no thermal activation (with it,
+        :meth:`loop_secant` is 1). Returns 1 if hysteresis is off.
         """
         peak = float(peak_piezo_V)
         if not np.isfinite(peak) or peak <= 0:
@@ -635,6 +679,22 @@ class PiezoConfig:
         if not self.linear_creep:
             return 1.0
         return 1.0 / (1.0 + float(sum(self.creep_gains))) if self.normalize_creep_dc else 1.0
+
+    def small_signal_creep(self) -> tuple[tuple, tuple, float]:
+        """``(c_k, tau_k, s)`` of the linear creep seen by small signals: ``s (1 + sum_k c_k / (tau_k s + 1))``.
+
+        The Kelvin-Voigt filter itself when it runs; for thermal operators the
+        logarithmic law at ``creep_per_decade`` on top of the instantaneous
+        gain (``s = 1``: the tangent gain ``w0`` holds at high frequency and the
+        creep adds to it); ``((), (), 1)`` without creep.
+        """
+        if self.linear_creep:
+            c = tuple(self.creep_gains)
+            return c, tuple(self.creep_time_constants_s), (1.0 / (1.0 + sum(c)) if self.normalize_creep_dc else 1.0)
+        if self.thermal:
+            c, tau = log_creep_stages(self.creep_per_decade)
+            return c, tau, 1.0
+        return (), (), 1.0
 
     def kernel_arrays(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """``(om, pp)`` for :func:`play_channel`: ``om = -expm1(-k dt)`` per operator, ``pp = (w0, V_a)``."""
