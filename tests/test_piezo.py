@@ -275,7 +275,7 @@ def test_reversal_gain_lies_in_the_published_band():
 
 def _retract_and_pass(cfg):
     """Approach 50 V, hold 1 s, retract 0.5 V (the loop holding position against creep), hold 0.1 s, then ramp at
-    100 V/s past the old maximum; returns the ramp's v and the local slope dh/dv."""
+    100 V/s past the last maximum; returns the ramp's v and the local slope dh/dv."""
     v = np.concatenate([np.linspace(0, 50, 401), np.full(int(FS_HZ), 50.0), np.linspace(50, 49.5, 41),
                         np.full(400, 49.5), 49.5 + 0.025 * np.arange(1, 221)])
     h = PiezoModel(cfg, DT_S, n_channels=1).run(v[:, None])[:, 0]
@@ -284,18 +284,18 @@ def _retract_and_pass(cfg):
 
 
 def test_re_engagement_after_a_retraction_is_spread():
-    """Athermal operators re-engage at the old maximum within one sample (a slope jump); thermally activated
-    ones re-engage over about V_a, past the old maximum (the creep moved the band edges)."""
+    """Athermal operators re-engage at the last maximum within one sample (a slope jump); thermally activated
+    ones re-engage over about V_a, past the last maximum (the creep moved the band edges)."""
     va, _ = PiezoConfig().activation()
     v_a, s_a = _retract_and_pass(PiezoConfig.athermal())
     jump = np.abs(np.diff(s_a)).max()
-    assert v_a[np.argmax(np.diff(s_a)) + 1] == pytest.approx(50.0 + 0.025, abs=1e-9)   # at the old maximum
+    assert v_a[np.argmax(np.diff(s_a)) + 1] == pytest.approx(50.0 + 0.025, abs=1e-9)   # at the last maximum
     v_t, s_t = _retract_and_pass(PiezoConfig())
     assert np.abs(np.diff(s_t)).max() < 0.2 * jump
     frac = (s_t - s_t[2]) / (s_t[-1] - s_t[2])
     v10, v50, v90 = (v_t[np.argmax(frac > q)] for q in (0.1, 0.5, 0.9))
     assert v90 - v10 > va                                   # spread over more than V_a (40 samples at this rate)
-    assert v50 > 50.0                                       # past the old maximum
+    assert v50 > 50.0                                       # past the last maximum
 
 
 # --- switches and variants --------------------------------------------------

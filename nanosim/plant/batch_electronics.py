@@ -156,7 +156,7 @@ class _StackedNoise(_NoiseTerms):
 
 
 def _noise_terms(make_chain, extract, kind: str, seeds) -> _NoiseTerms:
-    """Stacked noise when numba is there and the chain has no AR-shaped white noise (stage v1), else per chain."""
+    """Stacked noise when numba is there and the chain has no AR-shaped white noise (StageConfig.v1), else per chain."""
     if batch_kernel.AVAILABLE:
         ch = make_chain(0)
         if getattr(ch, "_ar", 0.0) == 0.0:

@@ -34,7 +34,7 @@ Operators
     creeps, ``d(t) = V_a ln(1 + nu t / V_a)`` (logarithmic creep, slope
     ``V_a ln 10`` per decade) until it nears ``v``; after a reversal the
     operators re-engage over a band of width ~``V_a`` that the creep has
-    moved past the old turning point, instead of all at once at the turning
+    moved past the last turning point, instead of all at once at the turning
     point; slow loops are narrower than fast ones (the coercive field of a
     thermally activated system grows with the log of the sweep rate:
     Bertotti, *Hysteresis in Magnetism*, Academic Press 1998, Ch. 9;
