@@ -12,7 +12,7 @@ import numpy as np
 __all__ = ["CONTROL_RATE_HZ", "CONTROL_PERIOD_S", "AMPLIFIER_GAIN", "COMMAND_RANGE_V", "PIEZO_MAX_V",
            "PIEZO_FREE_STROKE_M", "PIEZO_BLOCKING_FORCE_N", "PIEZO_STIFFNESS_N_PER_M",
            "PIEZO_FORCE_PER_PIEZO_V", "CREEP_PER_DECADE", "CREEP_TAU_MIN_S", "CREEP_TAU_MAX_S",
-           "CREEP_STAGES_PER_DECADE",
+           "CREEP_STAGES_PER_DECADE", "CREEP_REFERENCE_STEP_PIEZO_V",
            "COMPUTATION_DELAY_SAMPLES", "AMPLIFIER_BANDWIDTH_HZ",
            "AMPLIFIER_NOISE_V", "DAC_WHITE_NOISE_V", "DAC_FLICKER_CORNER_HZ", "GAUGE_BANDWIDTH_HZ",
            "GAUGE_FILTER_ORDER", "FLOOR_ACCEL_PSD_M2_S4_HZ", "FLOOR_VC_C_VELOCITY_UM_S", "FLOOR_TABLE_PLATEAU",
@@ -40,15 +40,21 @@ PIEZO_STIFFNESS_N_PER_M = PIEZO_BLOCKING_FORCE_N / PIEZO_FREE_STROKE_M   # 4.909
 PIEZO_FORCE_PER_PIEZO_V = PIEZO_BLOCKING_FORCE_N / PIEZO_MAX_V         # 0.18 N/V
 
 # --- piezo creep (nanosim.plant.piezo) ----------------------------------------
-# Logarithmic creep, x(t) = x(t0) (1 + gamma log10(t / t0)): PI Piezo Tutorial (Cat. 118,
-# p. 4-18; physikinstrumente.com/tutorial/4_21.html) gives gamma = 0.01-0.02 per decade for
-# stacks; 0.02 is the top of that range, which the paper's identified creep doublets (zero 8-11 %
-# above the pole in every column, Appendix A) favour. Realized by Kelvin-Voigt stages from
-# 1 ms to 100 s (the law has no time constant; the range covers every record the simulator runs).
-CREEP_PER_DECADE = 0.02
+# Logarithmic creep, x(t) = x(t0) (1 + gamma log10(t / t0)), t0 = 0.1 s: PI Piezo Tutorial (Cat. 118,
+# p. 4-18; physikinstrumente.com/tutorial/4_21.html) gives gamma = 0.01-0.02 per decade for stacks
+# (Jung & Gweon, Rev. Sci. Instrum. 71, 1896 (2000)). The piezo's activation voltage is calibrated
+# within that range to the open-loop creep of the paper's Fig. 15 move: 0.015, the middle of the range
+# (not a bound). The same gamma sets the linear Kelvin-Voigt creep law (1 ms to 100 s, two stages per
+# decade; the law has no time constant of its own, the range covers every record the simulator runs).
+# CREEP_TAU_MIN_S is also the creep's onset, attempt rate nu = V_a / CREEP_TAU_MIN_S (below 1 ms the
+# amplifier and the mechanics dominate the response).
+CREEP_PER_DECADE = 0.015
 CREEP_TAU_MIN_S = 1e-3
 CREEP_TAU_MAX_S = 100.0
 CREEP_STAGES_PER_DECADE = 2
+# Fig. 15's move: from the stage's home to the gauge origin, solve(G0, -home) on the nominal stage =
+# 2.77-2.93 controller V on the three actuators, 55-59 piezo V; their mean, the step the creep rate refers to.
+CREEP_REFERENCE_STEP_PIEZO_V = 57.0
 
 # --- the bench loop (nanosim.plant.electronics; mjcf/SOURCES.md items 4-6) -------
 # Computation delay between the controller's output and the DAC update, whole samples. The UMAC

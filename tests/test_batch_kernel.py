@@ -52,7 +52,7 @@ def _ref(n=700):
     ref = np.zeros((n, 3))
     ref[80:, 0] = 2.0
     ref[300:, 1] = -1.0
-    ref[500:, 2] = 15.0                # Z: into the amplifier limit under the 20 Hz loop
+    ref[500:, 2] = 20.0                # Z: into the amplifier limit under the 20 Hz loop
     return ref
 
 

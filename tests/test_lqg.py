@@ -169,7 +169,7 @@ def test_predicted_noise_sigma_of_a_first_order_plant_open_loop_is_the_closed_fo
 def test_identified_gain_is_the_piezo_gain_under_the_identification_excitation(seed):
     """IDENTIFIED_INPUT_GAIN_OF_NOMINAL, the piezo gain an identified model holds (factor on nominal), is what the
     piezo model (hysteresis and creep, no mechanics) gives over 20-100 Hz for the identification's own excitation:
-    between the slope after a reversal (w0 = 0.752) times the creep filter and nominal. 1 %."""
+    between the slope after a reversal (w0) and nominal. 1 %."""
     import scipy.signal as ss
 
     import identification as ident
@@ -191,8 +191,8 @@ def test_identified_gain_is_the_piezo_gain_under_the_identification_excitation(s
 
 
 def test_uncertainty_set_is_mapped_onto_the_plant_by_its_piezo_gain():
-    """The set's gain range is a factor on nominal; an identified model holds 0.733 of nominal, so on it the set
-    spans 0.75/0.733 ... 1/0.733; a twin (nominal piezo) keeps 0.75 ... 1. The mu keywords and the vertex check
+    """The set's gain range is a factor on nominal; an identified model holds g_id of nominal, so on it the set
+    spans 0.75/g_id ... 1/g_id; a twin (nominal piezo) keeps 0.75 ... 1. The mu keywords and the vertex check
     use the mapped range; a bad anchor is named."""
     from nanosim.design.architectures.common import uncertainty_vertex_check
     from nanosim.design.architectures.lqg import design_input_gains

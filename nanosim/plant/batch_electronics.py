@@ -1,4 +1,4 @@
-"""The bench electronics of B stages at once: DAC, amplifier, piezo hysteresis and creep, gauge, ADC.
+"""The bench electronics of B stages at once: DAC, amplifier, piezo operators and creep, gauge, ADC.
 
 Each member has three channels; the state is held as ``3 B`` channels and
 every effect is one numpy operation over all of them, in the order and with
@@ -15,7 +15,8 @@ chains that is not mirrored here fails it).
 The chain (``ActuatorChain.step``, ``SensorChain.step``): computation delay
 (:class:`~nanosim.plant.filters.DelayLine`), DAC quantiser, DAC noise (white and
 flicker), input-referred amplifier noise, saturation, gain, amplifier lag
-(:class:`~nanosim.plant.filters.AmplifierLag`), hysteresis, creep; gauge filter
+(:class:`~nanosim.plant.filters.AmplifierLag`), piezo operators (the compiled
+:func:`~nanosim.plant.piezo.play_channel` of the single stage), linear creep; gauge filter
 (:class:`~nanosim.plant.filters.SampledFilter`), gauge noise, clip, ADC. The
 filters are the single-stage classes on ``3 B`` channels.
 
@@ -35,7 +36,7 @@ import numpy as np
 from nanosim.plant import batch_kernel
 from nanosim.plant.electronics import ActuatorChain, ElectronicsConfig, SensorChain
 from nanosim.plant.filters import AmplifierLag, DelayLine, SampledFilter, butterworth_lowpass
-from nanosim.plant.piezo import PiezoConfig
+from nanosim.plant.piezo import PiezoConfig, play_run
 
 __all__ = ["BatchElectronics", "BatchReading"]
 
@@ -155,7 +156,7 @@ class _StackedNoise(_NoiseTerms):
 
 
 def _noise_terms(make_chain, extract, kind: str, seeds) -> _NoiseTerms:
-    """Stacked noise when numba is there and the chain has no AR-shaped white noise (stage v1), else per chain."""
+    """Stacked noise when numba is there and the chain has no AR-shaped white noise (StageConfig.v1), else per chain."""
     if batch_kernel.AVAILABLE:
         ch = make_chain(0)
         if getattr(ch, "_ar", 0.0) == 0.0:
@@ -175,13 +176,13 @@ class _StepElectronics:
         self.el = el
         self.ip, self.fp = batch_kernel.electronics_params(el)
         nch = 3 * el.n
-        nr = el._r.size if el._hyst else 0
-        self._zw, self._acc, self._hcr = np.empty((nr, nch)), np.empty((8, nch)), np.empty(nch)
+        self._hcr = np.empty(nch)
         self._none1 = np.zeros((1, 0))
         if el._hyst:
-            self._pr, self._pw = np.ascontiguousarray(el._r), np.ascontiguousarray(el._w)
+            self._pr, self._pw, self._pom, self._pp = el._r, el._w, el._om, el._pp
         else:
-            self._pr = self._pw = np.zeros(0)
+            self._pr = self._pw = self._pom = np.zeros(0)
+            self._pp = np.zeros(2)
         if el._creep:
             self._csc, self._ca, self._cb = (np.ascontiguousarray(c[:, 0]) for c in (el._sc_col, el._a_col, el._b_col))
         else:
@@ -201,10 +202,10 @@ class _StepElectronics:
         nch = uu.shape[0]
         v_pz, v_free, sat = np.empty(nch), np.empty(nch), np.empty(nch, dtype=bool)
         dbuf = el._delay._buf if el._delay.n else np.zeros((0, nch))
-        z = el._z.T if el._hyst else np.zeros((nch, 0)).T
+        z = el._z if el._hyst else np.zeros((nch, 0))
         cx = el._x if el._creep else np.zeros((0, nch))
         batch_kernel.actuate_period(uu, 0, self.ip, self.fp, dbuf, self._row(el._dac_noise), self._row(el._amp_noise),
-                                    el._lag._v, self._pr, self._pw, z, self._zw, self._acc, self._hcr, self._csc,
+                                    el._lag._v, self._pr, self._pw, self._pom, self._pp, z, self._hcr, self._csc,
                                     self._ca, self._cb, cx, v_pz, v_free, sat)
         return None, v_pz.reshape(shape), v_free.reshape(shape), sat.reshape(shape)
 
@@ -273,17 +274,16 @@ class BatchElectronics:
         self._lag = AmplifierLag(e.amplifier_bandwidth_Hz, e.dt_s, nch)
         self._dac_clip_implied = (self._quant and self._center + self._code_lo * self._lsb + margin < self._lo
                                   and self._hi < self._center + self._code_hi * self._lsb - margin)
-        # piezo (PrandtlIshlinskii, KelvinVoigtCreep)
+        # piezo (PlayOperators through the compiled play_run, KelvinVoigtCreep)
         self._hyst = p.hysteresis
         if self._hyst:
             w0, w = p.hysteresis_weights()
-            self._w0, self._w = float(w0), np.asarray(w, dtype=float).copy()
-            self._r = np.asarray(p.pi_thresholds_V, dtype=float).copy()
+            self._w0, self._w = float(w0), np.ascontiguousarray(w, dtype=float).copy()
+            self._r = np.ascontiguousarray(p.pi_thresholds_V, dtype=float).copy()
+            self._om, self._pp = p.kernel_arrays(e.dt_s)
             self._z0 = np.zeros((nch, self._r.size))
-            self._zw = np.empty_like(self._z0)
-            self._pm_r = np.stack([-self._r, self._r])
-            self._band = np.empty((nch, 2, self._r.size))
-        self._creep = p.creep
+            self._h1 = np.empty((1, nch))
+        self._creep = p.linear_creep
         if self._creep:
             c = np.asarray(p.creep_gains, dtype=float)
             tau = np.asarray(p.creep_time_constants_s, dtype=float)
@@ -341,7 +341,7 @@ class BatchElectronics:
 
     @property
     def hysteresis_state(self) -> np.ndarray | None:
-        """Copy of the play-operator outputs, ``(3 B, n_operators)`` (None without hysteresis)."""
+        """Copy of the operator outputs, ``(3 B, n_operators)`` (None without hysteresis)."""
         return self._z.copy() if self._hyst else None
 
     def actuate(self, u_V: np.ndarray):
@@ -381,13 +381,9 @@ class BatchElectronics:
             sat = (code_c != code) if code is not None else np.zeros(u.shape, dtype=bool)
         v = self._lag.step(np.multiply(self._gain, u_cmd))
         h = v
-        if self._hyst:
-            band = np.add(v[:, None, None], self._pm_r, out=self._band)   # [v - r, v + r]; v - r == v + (-r) exactly
-            z = self._z
-            maximum(z, band[:, 0], out=z)
-            minimum(z, band[:, 1], out=z)
-            h = np.add.reduce(np.multiply(z, self._w, out=self._zw), axis=-1)
-            h += self._w0 * v                                   # w0 v + sum (commutative: same bits)
+        if self._hyst:                                          # the single stage's compiled operators
+            play_run(v.reshape(1, -1), self._z, self._r, self._w, self._om, self._pp, self._h1)
+            h = self._h1[0].copy()
         if self._creep:
             terms = self._terms
             np.multiply(self._scale, h, out=terms[0])

@@ -3,11 +3,12 @@
 :func:`twin_closed_loop` runs the loop of
 :func:`nanosim.experiments.batch_loop.run_closed_loop_batch` (controller bank,
 then :meth:`BatchTwinStage.step`: computation delay, DAC quantiser and noise,
-amplifier noise, saturation, gain, amplifier lag, Prandtl-Ishlinskii
-hysteresis, creep, twin, floor vibration, gauge filter, gauge noise, clip,
-ADC) for every member without returning to Python between periods. Every
-element-wise operation is the numpy path's, in its order (the hysteresis sum
-is numpy's pairwise summation, the creep sum left to right), and the noise
+amplifier noise, saturation, gain, amplifier lag, piezo operators, linear
+creep, twin, floor vibration, gauge filter, gauge noise, clip, ADC) for every
+member without returning to Python between periods. Every element-wise
+operation is the numpy path's, in its order (the piezo operators are the
+single stage's compiled :func:`~nanosim.plant.piezo.play_channel`, the creep
+sum left to right), and the noise
 terms are the same rows (drawn in blocks from the same streams). The matrix
 products are the numpy path's: BLAS calls made from compiled code for the
 controllers, shared twins and the exact per-member products (one ``gemv``
@@ -24,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from nanosim import constants as C
+from nanosim.plant.piezo import play_channel
 
 try:                                   # pragma: no cover - exercised where numba is installed
     from numba import njit
@@ -77,36 +79,6 @@ def pairwise_sum(v):
 
 
 @njit(cache=True)
-def _pairwise_columns(a, acc, out):
-    """``out[c] = pairwise_sum(a[:, c])`` for every column of ``a`` ``(n <= 128, channels)``."""
-    n, nch = a.shape
-    if n < 8:
-        for ch in range(nch):
-            out[ch] = 0.0
-        for i in range(n):
-            for ch in range(nch):
-                out[ch] += a[i, ch]
-        return
-    for k in range(8):
-        for ch in range(nch):
-            acc[k, ch] = a[k, ch]
-    i = 8
-    m = n - (n % 8)
-    while i < m:
-        for k in range(8):
-            for ch in range(nch):
-                acc[k, ch] += a[i + k, ch]
-        i += 8
-    for ch in range(nch):
-        out[ch] = ((acc[0, ch] + acc[1, ch]) + (acc[2, ch] + acc[3, ch])) + \
-            ((acc[4, ch] + acc[5, ch]) + (acc[6, ch] + acc[7, ch]))
-    while i < n:
-        for ch in range(nch):
-            out[ch] += a[i, ch]
-        i += 1
-
-
-@njit(cache=True)
 def _matvec(M, x, out):
     """Set out = M @ x: the BLAS ``gemv`` numpy's stacked ``matmul`` makes for one member (into ``out``)."""
     np.dot(M, x, out)
@@ -134,12 +106,11 @@ def member_products(PS, XT, OUT):
 
 
 @njit(cache=True, error_model="numpy")
-def actuate_period(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, zw, acc, hcr, csc, ca, cb, cx, v_pz, v_free,
+def actuate_period(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, pom, pp, z, hcr, csc, ca, cb, cx, v_pz, v_free,
                    satv):
     """One period of :meth:`BatchElectronics.actuate` on the channel commands ``uu`` (delayed in place)."""
     nch = uu.shape[0]
     nd = ip[I_DELAY]
-    nr = pr.shape[0]
     ncr = csc.shape[0]
     cscale = fp[F_CSCALE]
     center, lsb, clo, chi = fp[F_CENTER], fp[F_LSB], fp[F_CLO], fp[F_CHI]
@@ -183,19 +154,9 @@ def actuate_period(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, zw, acc, 
             v = vin
         v_pz[ch] = v
         v_free[ch] = v
-    if ip[I_HYST]:                      # play operators, then numpy's pairwise sum of z w per channel
-        for j in range(nr):
-            rj, nrj, wj = pr[j], -pr[j], pw[j]
-            for ch in range(nch):
-                v = v_pz[ch]
-                zj = max(z[j, ch], v + nrj)
-                zj = min(zj, v + rj)
-                z[j, ch] = zj
-                zw[j, ch] = zj * wj
-        _pairwise_columns(zw, acc, hcr)
-        w0 = fp[F_W0]
+    if ip[I_HYST]:                      # the piezo operators of each channel (z: channels x operators)
         for ch in range(nch):
-            v_free[ch] = hcr[ch] + w0 * v_pz[ch]
+            v_free[ch] = play_channel(v_pz[ch], z[ch], pr, pw, pom, pp)
     if ip[I_CREEP]:                     # s h + sum_k s c_k x_k left to right; x_k = a_k x_k + b_k h
         for ch in range(nch):
             hcr[ch] = cscale * v_free[ch]
@@ -243,14 +204,13 @@ def sense_period(dd, kk, ip, fp, gb, ga, gz, gnoise, y_V, y_um, clip):
 @njit(cache=True, error_model="numpy")
 def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
             cmode, CM, xe, ns, ne, two_dof,
-            ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, csc, ca, cb, cx,
+            ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, pom, pp, z, csc, ca, cb, cx,
             tmode, TA, TB, TC, TD, TP, tx, home,
             fmode, FA, FB, FC, FP, fx, facc,
             gb, ga, gz, gnoise,
             table, last_pz, last_sat, last_clip, k0, orec, pz_rec, yu_rec, cl_rec):
     nb = y.shape[0]
     nch = 3 * nb
-    nr = pr.shape[0]
     gain = fp[F_GAIN]
     nx = tx.shape[1]
     nf = fx.shape[1]
@@ -260,8 +220,6 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
     v_free = np.empty(nch)
     v_pz = np.empty(nch)
     satv = np.zeros(nch, dtype=np.bool_)
-    zw = np.empty((nr, nch))
-    acc = np.empty((8, nch))
     co = np.empty(p_out)
     XV = np.empty((nb if tmode == 2 else 0, nx + 3))
     XT = np.empty((nx + 3 if tmode == 3 else 0, nb))
@@ -320,8 +278,8 @@ def _kernel(n, ref, y, rec, yv, tb, us, sat_rec,
         for b in range(nb):
             for c in range(3):
                 uu[3 * b + c] = u[b, c]
-        actuate_period(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, zw, acc, hcr, csc, ca, cb, cx, v_pz, v_free,
-                 satv)
+        actuate_period(uu, kk, ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, pom, pp, z, hcr, csc, ca, cb, cx, v_pz, v_free,
+                       satv)
         # -- twin (BatchTwinStage._advance) and floor
         if tmode == 2:                      # shared [x+; y] = P [x; v]: one gemm, [x, v] @ P.T
             for b in range(nb):
@@ -444,13 +402,11 @@ def supported(stage, started: bool = True) -> bool:
     """True if the compiled loop can run ``stage``.
 
     That is: numba is installed, ``stage`` is a :class:`~nanosim.plant.batch.BatchTwinStage` built with
-    ``compiled=True``, with at most 128 hysteresis operators, and (``started``) its gauge filter has
+    ``compiled=True``, and (``started``) its gauge filter has
     seen its first sample (``stage.read()`` or one ``step``).
     """
     el = getattr(stage, "electronics", None)
     if not AVAILABLE or el is None or not getattr(stage, "compiled", False) or not hasattr(stage, "kernel_twin"):
-        return False
-    if el._hyst and el._r.size > 128:
         return False
     gf = el._gauge_filter
     return gf is None or gf._z is not None or not started
@@ -525,10 +481,11 @@ def _run(stage, ctrl, ref_V, y_V, record, recs, orecs):
     dbuf = el._delay._buf if el._delay.n else np.zeros((0, 3 * nb))
     lag_v = el._lag._v
     if el._hyst:
-        pr, pw, z = _f(el._r), _f(el._w), np.ascontiguousarray(el._z.T)     # (operators, channels)
+        pr, pw, pom, pp, z = _f(el._r), _f(el._w), _f(el._om), _f(el._pp), el._z   # z: (channels, operators)
     else:
-        pr = pw = np.zeros(0)
-        z = np.zeros((0, 3 * nb))
+        pr = pw = pom = np.zeros(0)
+        pp = np.zeros(2)
+        z = np.zeros((3 * nb, 0))
     if el._creep:
         csc, ca, cb, cx = _f(el._sc_col[:, 0]), _f(el._a_col[:, 0]), _f(el._b_col[:, 0]), el._x
     else:
@@ -565,14 +522,12 @@ def _run(stage, ctrl, ref_V, y_V, record, recs, orecs):
         facc = fl.take_accel(m) if fmode else np.zeros((0, nb, 3))
         _kernel(m, ref_V[k0:k0 + m], y, record, yv, tb, us, sat,
                 cmode, CM, xe, ns, ne, two_dof,
-                ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, z, csc, ca, cb, cx,
+                ip, fp, dbuf, dacn, ampn, lag_v, pr, pw, pom, pp, z, csc, ca, cb, cx,
                 tmode, TA, TB, TC, TD, TP, tx, stage._home_um,
                 fmode, FA, FB, FC, FP, fx, facc,
                 gb, ga, gz, gn,
                 table, last_pz, last_sat, last_clip, k0, orec, pz, yu, cl)
         k0 += m
-    if el._hyst:
-        el._z[...] = z.T
     if fmode:
         fl._x[:, :, 0] = fx
     stage.kernel_twin_done(tx)

@@ -133,14 +133,14 @@ def linearize(stage, f_cut_hz: float = 2500.0, include_piezo: bool = False, with
 
 
 def _piezo_small_signal(stage) -> ct.StateSpace:
-    """3x3 diagonal small-signal piezo model: gain w0 times the creep filter."""
+    """3x3 diagonal small-signal piezo model: gain w0 times the small-signal creep (PiezoConfig.small_signal_creep)."""
     cfg = stage.config.piezo
     gain = cfg.small_signal_gain() if cfg.hysteresis else 1.0
     tf = ct.tf([gain], [1.0])
-    if cfg.creep:
-        s0 = 1.0 / (1.0 + sum(cfg.creep_gains)) if cfg.normalize_creep_dc else 1.0
+    gains, taus, s0 = cfg.small_signal_creep()
+    if gains:
         filt = ct.tf([1.0], [1.0])
-        for c_k, tau in zip(cfg.creep_gains, cfg.creep_time_constants_s):
+        for c_k, tau in zip(gains, taus):
             filt = filt + ct.tf([c_k], [tau, 1.0])
         tf = tf * filt * s0
     return ct.ss(ct.append(*(ct.ss(tf) for _ in range(3))))

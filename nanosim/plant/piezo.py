@@ -1,4 +1,4 @@
-"""Piezo-actuator electromechanics: rate-independent hysteresis and linear creep.
+"""Piezo-actuator electromechanics: thermally activated play operators, hysteresis and creep in one state.
 
 The model maps the amplifier output ``v_piezo_V`` (piezo volts) of each actuator
 channel to a *free-strain voltage* ``v_free_V``: the voltage a linear,
@@ -6,135 +6,242 @@ creep-free piezo would need to produce the same free strain. The mechanics
 turns it into the tendon force ``F = PIEZO_FORCE_PER_PIEZO_V * v_free_V``.
 With hysteresis and creep switched off, ``v_free_V == v_piezo_V`` exactly.
 
-Hysteresis -- Prandtl-Ishlinskii (PI) operator
-    ``h(t) = w0 * v(t) + sum_i w_i * z_i(t)``,  with play operators
-    ``z_i(t) = max(v(t) - r_i, min(v(t) + r_i, z_i(t-))``, thresholds
-    ``r_i > 0`` and weights ``w_i >= 0`` (Brokate & Sprekels, *Hysteresis and
-    Phase Transitions*, Springer 1996, Sec. 2.3; Kuhnen, "Modeling,
-    identification and compensation of complex hysteretic nonlinearities: a
-    modified Prandtl-Ishlinskii approach", Eur. J. Control 9(4), 2003;
-    Al Janaideh, Rakheja & Su, "A generalized Prandtl-Ishlinskii model for
-    characterizing the hysteresis and saturation nonlinearities of smart
-    actuators", Smart Mater. Struct. 18, 045001, 2009). The model is
-    rate-independent by construction, starts from the virgin state
-    ``z_i = 0`` at 0 V, and its ascending branch is convex ("concave up")
-    as in piezo loops.
+Operators
+    ``h(t) = w0 * v(t) + sum_i w_i * z_i(t)`` with thresholds ``r_i > 0`` and
+    weights ``w_i >= 0``. Each operator output ``z_i`` obeys the athermal play
+    clamp ``z_i = clamp(z_i, v - r_i, v + r_i)`` (Prandtl-Ishlinskii: Brokate &
+    Sprekels, *Hysteresis and Phase Transitions*, Springer 1996, Sec. 2.3;
+    Kuhnen, Eur. J. Control 9(4), 2003) and, inside the band, a thermally
+    activated relaxation toward ``v``. With ``e = v - z`` and the distance to
+    the band edge ``d = r - |e|`` (``0 <= d <= r``), a jump toward ``v`` has
+    to cross the barrier ``d`` and one away from it the barrier ``r + |e|``
+    (Neel's thermal activation over a barrier proportional to the field
+    distance; Preisach-Neel creep operators: Basso, Bertotti et al., Phys.
+    Rev. B 61, 1278 (2000); Krejci & Kuhnen, IEE Proc. Control Theory Appl.
+    148, 185 (2001); for piezoceramics, domain-wall motion over a random
+    pinning landscape, Damjanovic, Phys. Rev. B 55, R649 (1997)). The net
+    Arrhenius rate is::
 
-    Default weights: a discretised density ``w(r) ~ exp(-r / 20 V)`` on 12
-    thresholds (1 ... 64 V, weight = density x threshold spacing). A nearly
-    uniform density reproduces the Rayleigh law of piezoceramics at low and
-    moderate fields (hysteresis grows with amplitude, small loops are nearly
-    linear; Damjanovic, Rep. Prog. Phys. 61, 1267, 1998); the exponential
-    roll-off keeps the full-stroke loop at ~10 %. One scale was fitted so that
-    the virgin 0 -> 33 -> 0 piezo-V loop (0 -> 1.65 -> 0 controller V, paper
-    Fig. 14) has ~14.4 % output and ~14.6 % input hysteresis (paper: 15 % and
-    14 %), then all weights were normalised so that the *major-loop secant*
-    ``h(33 V) / 33 V`` on the virgin curve is exactly 1
-    (``PiezoConfig.normalize_loop_slope``).
+        dz/dt = nu [exp(-d / V_a) - exp(-(r + |e|) / V_a)] sign(e)
+              = 2 nu exp(-r / V_a) sinh(e / V_a)
 
-    Consequences (documented for the identification): the small-signal gain
-    after any reversal is ``w0 = 0.752`` for minor loops below 2 V
-    peak-to-peak (smallest threshold 1 V: such loops are exactly linear),
-    rising to 0.85 for a 10 V step from rest. See
-    :meth:`PiezoConfig.small_signal_gain` and :meth:`PiezoConfig.loop_slope`.
-    Literature check (no parameter fitted to it): in the Rayleigh regime of
-    PZT, ``d(E0) = d_init + alpha E0``, a loop of amplitude ``E0`` has a
-    relative width ``w = alpha E0 / (2 (d_init + alpha E0))`` and the slope
-    right after a reversal is ``d_init``, so reversal gain / secant
-    ``= 1 - 2 w`` (Damjanovic 1998): 0.70 for the paper's 15 % loop, 0.80
-    for a 10 % loop; PI quotes 10-15 % for large-signal loops and ~2 % for
-    small-signal ones (piceramic.com piezo tutorial). ``w0 = 0.752`` lies
-    inside that 0.65-0.85 band.
+    with the activation voltage ``V_a`` and the attempt rate ``nu`` (V/s).
+    Near the band edge (``|e| >> V_a``) the backward term is negligible and
+    ``dd/dt = nu exp(-d / V_a)``; near ``z = v`` it makes the relaxation
+    linear, ``dz/dt = (v - z) / tau_r`` with ``tau_r = V_a exp(r / V_a) /
+    (2 nu)`` (detailed balance: no drift at ``z = v``). Creep and hysteresis
+    share the state ``z``: every operator held on its band edge after a move
+    creeps, ``d(t) = V_a ln(1 + nu t / V_a)`` (logarithmic creep, slope
+    ``V_a ln 10`` per decade) until it nears ``v``; after a reversal the
+    operators re-engage over a band of width ~``V_a`` that the creep has
+    moved past the last turning point, instead of all at once at the turning
+    point; slow loops are narrower than fast ones (the coercive field of a
+    thermally activated system grows with the log of the sweep rate:
+    Bertotti, *Hysteresis in Magnetism*, Academic Press 1998, Ch. 9;
+    Sharrock, J. Appl. Phys. 76, 6413 (1994); for piezo stacks, the loop
+    widens with frequency: Ge & Jouaneh, Precis. Eng. 17, 211 (1995)). With
+    ``V_a -> 0`` the model is the rate-independent PI model.
 
-Creep -- logarithmic law, realized by series Kelvin-Voigt elements
-    Published creep of stack (and amplified) piezo actuators after a step is
-    logarithmic in time: ``x(t) = x(t0) (1 + gamma log10(t / t0))`` with
-    ``gamma`` "on the order of 0.01 to 0.02, which is 1 % to 2 % per time
-    decade" (PI, *Piezo Tutorial*, Cat. 118 p. 4-18, and
-    physikinstrumente.com/tutorial/4_21.html, t0 = 0.1 s; Jung & Gweon,
-    "Creep characteristics of piezoelectric actuators", Rev. Sci. Instrum. 71,
-    1896, 2000). The law has no time constant of its own; it is realized here
-    as a spring in series with Kelvin-Voigt spring-dashpot elements (Croft,
-    Shed & Devasia, J. Dyn. Sys. Meas. Control 123(1), 35-43, 2001)::
+Exact discretisation
+    The input is zero-order held over a sample ``dt``. At each sample the
+    clamp is applied and the output ``h`` formed; then the relaxation is
+    integrated exactly with ``v`` held. With ``u = |e| / V_a`` the rate law
+    is ``du/dt = -k sinh(u)``, ``k = 2 nu exp(-r / V_a) / V_a``, whose
+    solution is ``tanh(u1 / 2) = q tanh(u0 / 2)``, ``q = exp(-k dt)``. It is
+    evaluated in ``p = exp(-u)`` without cancellation near the band edge::
 
-        v_free = s * (h + sum_k c_k x_k),   tau_k dx_k/dt = h - x_k,
-        V_free(s) = s0 (1 + sum_k c_k / (tau_k s + 1)) H(s)
+        1 - T = (1 - q) + q * 2 p0 / (1 + p0),   p1 = (1 - T) / (1 + T),
+        |e1| = -V_a ln(p1),   z = v - sign(e) |e1|
 
-    with ``tau_k`` log-spaced from ``tau_min`` to ``tau_max`` at
-    ``n`` stages per decade and equal weights ``c_k = gamma / n``
-    (:func:`log_creep_stages`). For ``tau_min << t << tau_max`` the step
-    response of the sum is ``sum_k c_k (1 - exp(-t / tau_k))
-    ~ gamma log10(t / tau_min) + const``: slope ``gamma`` per decade (with
-    n = 2 the slope ripples by < 1 % between 10 tau_min and tau_max / 10).
-    Defaults (``nanosim.constants``): gamma = 0.02 per decade (top of PI's
-    range; the creep doublet in every column of the paper's identified model,
-    zero 8-11 % above the pole, points to the upper end), tau from 1 ms to
-    100 s, two stages per decade (11 stages). With ``normalize_creep_dc`` the
-    DC gain of the creep filter is 1 and the instantaneous gain
-    ``1 / (1 + sum c_k) = 0.90``, so the quasi-static (datasheet) stroke is
-    unchanged. Discretisation is exact for a zero-order-held input:
+    with ``1 - q = -expm1(-k dt)`` per operator, computed once. One ``exp``
+    and one ``log`` per operator per sample; unconditionally stable, and
+    ``z`` approaches ``v`` without crossing it. Near the band edge (``p0,
+    1 - q << 1``) it reduces to ``exp(d1 / V_a) = exp(d0 / V_a) + nu dt /
+    V_a``. A constant input therefore gives ``tanh(u_n / 2) = q^n tanh(u_0 /
+    2)`` exactly at the samples. Every path (single stage, batch, compiled
+    batch loop) evaluates one compiled scalar routine, :func:`play_channel`,
+    so their outputs agree bit for bit.
+
+Parameters and their derivation
+    Thresholds: 12 roughly geometric steps from 1 V to 64 V (a realisation
+    choice; no source gives an operator set for the APA35XS). Weights: an
+    ``exp(-r / 20 V)`` density (weight = density x threshold spacing; a
+    nearly uniform density at low fields is the Rayleigh law of
+    piezoceramics, Damjanovic, Rep. Prog. Phys. 61, 1267 (1998)) times one
+    scale, calibrated by least squares to the paper's Fig. 14 loop (15 %
+    output / 14 % input hysteresis, 0 -> 1.65 -> 0 controller V = 0 -> 33 ->
+    0 piezo V in 2 s, from the virgin state, with the activation below). All
+    weights are then normalised so that the secant of that loop's rising
+    branch, ``h(33 V) / 33 V`` at the end of the 1 s ramp from rest (creep
+    during the ramp included), is 1 (``normalize_loop_slope``): the Fig. 14
+    travel is then the mechanics' calibrated static gain times 1.65 V, as
+    ``STATIC_GAIN_SCALE_UM_PER_V`` assumes. The tangent gain right after a
+    reversal is ``w0`` (:meth:`PiezoConfig.small_signal_gain`).
+
+    Activation voltage ``V_a``: from the published creep rate. PI's law for
+    the motion after a step is ``x(t) = x(t0) (1 + gamma log10(t / t0))``,
+    ``t0 = 0.1 s``, gamma "on the order of 0.01 to 0.02" per decade (PI,
+    *Piezo Tutorial*, Cat. 118 p. 4-18 and physikinstrumente.com/tutorial/
+    4_21.html; Jung & Gweon, Rev. Sci. Instrum. 71, 1896 (2000)). The
+    model's step response from the virgin state has a closed form
+    (:meth:`PiezoConfig.thermal_step_response`: operator ``i`` starts at
+    ``|e_0| = min(H, r_i)`` and follows the solution above), so ``V_a`` is
+    the root of ``gamma(V_a) = creep_per_decade``, with ``gamma`` the
+    least-squares slope of ``x(t) / x(0.1 s)`` against ``log10 t`` over
+    0.1-10 s after a step of ``creep_reference_V`` (the paper's Fig. 15 move
+    from the stage's home to the gauge origin): a one-line calibration of the
+    open-loop creep of Fig. 15 within PI's 1-2 % per decade
+    (:func:`activation_voltage_for_creep`). For a uniform density ``rho``
+    (weight per volt, thresholds from 0) and no operator yet near ``v``, a
+    step ``H`` engages ``rho H`` of weight creeping at ``V_a ln 10``
+    per decade on ``h = (w0 + rho H / 2) H``: ``gamma = V_a ln(10) rho /
+    (w0 + rho H / 2)``, independent of the step for ``rho H << 2 w0``
+    (proportional creep). The default density falls with ``r``, so steps
+    smaller than the reference creep faster, larger ones slower.
+
+    Attempt rate ``nu``: from the creep's onset. The law ``V_a ln(1 + nu t /
+    V_a)`` is logarithmic for ``t >> V_a / nu``; ``nu = V_a / tau_min`` puts
+    that corner at ``CREEP_TAU_MIN_S`` (1 ms), the shortest creep time the
+    log law is applied at (below it the amplifier and the mechanics dominate).
+
+Switches and variants
+    ``hysteresis=True, creep=True`` (default): thermally activated operators.
+    ``creep=False``: athermal operators (``V_a -> 0``), the rate-independent
+    PI model: hysteresis without creep. ``hysteresis=False, creep=True``: no
+    operators; creep is the linear logarithmic law realised by Kelvin-Voigt
+    stages (below), the form creep takes without hysteresis.
+    ``creep_model="kelvin_voigt"``: the PI model followed by that linear
+    creep filter (the two-mechanism model, for comparisons).
+
+Linear creep (Kelvin-Voigt stages)
+    ``v_free = s (h + sum_k c_k x_k)``, ``tau_k dx_k/dt = h - x_k``: a spring
+    in series with spring-dashpot elements (Croft, Shed & Devasia, J. Dyn.
+    Sys. Meas. Control 123, 35 (2001)), ``tau_k`` log-spaced from 1 ms to
+    100 s at two per decade with ``c_k = gamma / 2``
+    (:func:`log_creep_stages`): step response ``~ gamma log10(t / tau_min)``
+    for ``tau_min << t << tau_max``; ``s = 1 / (1 + sum c_k)`` keeps the DC
+    gain 1 (``normalize_creep_dc``). Exact for a zero-order-held input:
     ``x[n+1] = a x[n] + (1 - a) h[n]``, ``a = exp(-dt / tau)``.
-
-    Stage v1's creep (:meth:`PiezoConfig.calibrated_v1`: 10 % at 1/29 s to
-    place the paper's identified 29 rad/s pole, 1 % at 1 s and 10 s) had no
-    source; identified through the paper's excitation, neither v1 nor v2
-    creep returns that pole (``nanosim.pipeline.predictions``).
-
-Why the paper's controller rings on this piezo (issue 12), in these equations
-    The paper's design inverts the plant: its zeros sit on the 176/178 Hz
-    poles, so the closed loop leaves those modes at their open-loop damping
-    (zeta ~ 0.003). (1) An approach to the working point (~48 V) leaves every
-    operator with ``r_i`` below the excursion on its edge, ``z_i = v - r_i``.
-    (2) Creep keeps the stage moving, ``~ gamma dx log10(t)``, and the loop
-    holds position by retracting the command by ``delta`` (~0.5 V after
-    0.5 s): a reversal, after which all ``z_i`` hold. (3) A following step
-    that drives the actuator up again has the gain ``w0 = 0.75`` until ``v``
-    passes the old turning point, where every held operator re-engages at
-    once (return-point memory: ``z_i = v - r_i`` again) and the gain jumps
-    to ``w0 + sum w_i = 1.24``: a kink in the force rate in mid-step, which
-    excites the undamped modes. Without creep there is no retraction and the
-    step starts at its turning point (no mid-step kink); without hysteresis
-    the gain is constant. Either alone settles in ~9 ms; a 0.1 um
-    retraction imposed through the reference on a creep-free piezo rings
-    just as creep does (``nanosim.pipeline.ablation`` docstring).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
+from math import exp, log
 from typing import Sequence
 
 import numpy as np
+from scipy.optimize import brentq
 from scipy.signal import lfilter
 
 from nanosim import constants as C
 from nanosim.plant.loopmetrics import loop_hysteresis_percent
 from nanosim.validation import as_finite_array
 
+try:                                   # pragma: no cover - exercised where numba is installed
+    from numba import njit
+except ImportError:                    # pragma: no cover
+    def njit(*args, **kwargs):
+        """Stand-in decorator without numba (the same arithmetic in Python)."""
+        return (lambda f: f) if not args or not callable(args[0]) else args[0]
+
 __all__ = [
     "log_creep_stages",
+    "activation_voltage_for_creep",
+    "play_channel",
+    "play_run",
+    "relaxation_rates",
     "PiezoConfig",
+    "PlayOperators",
     "PrandtlIshlinskii",
     "KelvinVoigtCreep",
     "PiezoModel",
     "loop_hysteresis_percent",
 ]
 
-# Paper Fig. 14: 0 -> 1.65 controller V = 0 -> 33 piezo V.
+# Paper Fig. 14: 0 -> 1.65 controller V = 0 -> 33 piezo V, a 2 s triangle (nanosim.experiments.hysteresis).
 DEFAULT_LOOP_PEAK_PIEZO_V = 33.0
 
-# Operator thresholds: a realisation choice [E] (no source gives a PI operator set for the APA35XS):
+CREEP_MODELS = ("thermal", "kelvin_voigt")
+
+# Operator thresholds: a realisation choice [E] (no source gives an operator set for the APA35XS):
 # 12 roughly geometric steps from 1 V to 64 V, the range of reversal amplitudes the experiments
-# produce (0.05 V ripple to the 33 V loop of Fig. 14). Weights: an exp(-r / 20 V) density whose
-# scale is calibrated (least squares, no bound) to Fig. 14's 15 % output / 14 % input loop at
-# 0-33 V; the linear weight w0 = 0.752 sits in the Rayleigh-law band 0.65-0.85 (mjcf/SOURCES.md item 3).
+# produce (0.05 V ripple to the 33 V loop of Fig. 14). Weights: an exp(-r / 20 V) density
+# (weight = density x spacing) times one scale, calibrated (least squares, no bound) to Fig. 14's
+# 15 % output / 14 % input loop at 0-33 V in 2 s with the default activation (mjcf/SOURCES.md item 3);
+# after the loop-slope normalisation w0 lies in the Rayleigh-law band 0.65-0.85 of the secant.
 _DEFAULT_THRESHOLDS_V = (1.0, 2.0, 3.5, 5.5, 8.0, 11.0, 15.0, 20.0, 27.0, 36.0, 48.0, 64.0)
-_DEFAULT_WEIGHTS = (0.02386, 0.02837, 0.03684, 0.04286, 0.04623, 0.05065,
+_DENSITY_WEIGHTS = (0.02386, 0.02837, 0.03684, 0.04286, 0.04623, 0.05065,
                     0.05331, 0.05536, 0.05201, 0.04353, 0.03185, 0.01942)
+_FIG14_WEIGHT_SCALE = 1.315
+_DEFAULT_WEIGHTS = tuple(round(_FIG14_WEIGHT_SCALE * w, 6) for w in _DENSITY_WEIGHTS)
 _DEFAULT_LINEAR_WEIGHT = 0.7524
 
-# Run the PI recursion over blocks of this many samples (bounds the
-# (block, channels, operators) work arrays to a few MB).
-_RUN_BLOCK = 8192
+# Rise time of the loop-slope normalisation ramp: Fig. 14's 2 s triangle rises in 1 s.
+DEFAULT_LOOP_RISE_S = 1.0
+
+# Creep-rate window of PI's law (t0 = 0.1 s) over which the activation voltage is derived.
+CREEP_WINDOW_S = (0.1, 10.0)
+
+
+@njit(cache=True, error_model="numpy")
+def play_channel(v, z, r, w, om, pp):
+    """One sample of one channel's operators: clamp, output, then the exact thermal relaxation.
+
+    Parameters
+    ----------
+    v : float
+        Input (piezo volts), held over the sample.
+    z : ndarray, shape (n_operators,)
+        Operator outputs, updated in place to their values at the next sample.
+    r, w : ndarray, shape (n_operators,)
+        Thresholds (V) and weights.
+    om : ndarray, shape (n_operators,)
+        ``1 - q = -expm1(-k dt)``, ``k = 2 nu exp(-r / V_a) / V_a``.
+    pp : ndarray, shape (2,)
+        ``(w0, V_a)``; ``V_a <= 0`` is the athermal (PI) operator.
+
+    Returns
+    -------
+    float
+        ``w0 v + sum_i w_i z_i`` with the clamped ``z`` (sum left to right).
+    """
+    w0, va = pp[0], pp[1]
+    acc = 0.0
+    for j in range(r.shape[0]):
+        rj = r[j]
+        zj = min(max(z[j], v - rj), v + rj)
+        acc += w[j] * zj
+        if va > 0.0:
+            e = v - zj
+            if e != 0.0:
+                p0 = exp(-abs(e) / va)
+                omj = om[j]
+                omt = omj + (1.0 - omj) * (2.0 * p0 / (1.0 + p0))      # 1 - T
+                if omt > 0.0:
+                    ae1 = -va * log(omt / (2.0 - omt))                   # |e1| = -V_a ln p1
+                    zj = v - ae1 if e > 0.0 else v + ae1
+        z[j] = zj
+    return w0 * v + acc
+
+
+@njit(cache=True, error_model="numpy")
+def play_run(v, z, r, w, om, pp, out):
+    """:func:`play_channel` over samples and channels.
+
+    ``v``, ``out``: ``(N, channels)``; ``z``: ``(channels, n_operators)``, updated in place.
+    """
+    for k in range(v.shape[0]):
+        for ch in range(v.shape[1]):
+            out[k, ch] = play_channel(v[k, ch], z[ch], r, w, om, pp)
+
+
+def relaxation_rates(thresholds_V, activation_V: float, attempt_rate_V_per_s: float) -> np.ndarray:
+    """``k = 2 nu exp(-r / V_a) / V_a`` (1/s) of each operator (zeros if ``V_a = 0``): ``1 / tau_r`` near ``z = v``."""
+    r = np.asarray(thresholds_V, dtype=float)
+    if activation_V <= 0.0:
+        return np.zeros_like(r)
+    return 2.0 * attempt_rate_V_per_s * np.exp(-r / activation_V) / activation_V
 
 
 def log_creep_stages(per_decade: float = C.CREEP_PER_DECADE, tau_min_s: float = C.CREEP_TAU_MIN_S,
@@ -180,8 +287,93 @@ def log_creep_stages(per_decade: float = C.CREEP_PER_DECADE, tau_min_s: float = 
 
 
 _LOG_CREEP_GAINS, _LOG_CREEP_TAUS = log_creep_stages()
-# Stage v1 (before issue 12): a 10 % stage placed at the identified 29 rad/s pole, plus 1 % at 1 s and 10 s.
-_V1_CREEP_GAINS, _V1_CREEP_TAUS = (0.10, 0.01, 0.01), (1.0 / 29.0, 1.0, 10.0)
+# Creep stages placed at the paper's identified 29 rad/s pole (PiezoConfig.calibrated_v1).
+_POLE_CREEP_GAINS, _POLE_CREEP_TAUS = (0.10, 0.01, 0.01), (1.0 / 29.0, 1.0, 10.0)
+
+
+def _step_response(t, step_V, r, w0, w, va, nu):
+    """Continuous-time output at ``t`` after a step ``step_V > 0`` from the virgin state (see PiezoConfig)."""
+    t = np.maximum(np.asarray(t, dtype=float), 0.0)[..., None]
+    e0 = np.minimum(step_V, r)                                   # z_0 = max(H - r, 0), e_0 = H - z_0
+    if va > 0.0:
+        p0 = np.exp(-e0 / va)
+        om = -np.expm1(-relaxation_rates(r, va, nu) * t)
+        omt = om + (1.0 - om) * (2.0 * p0 / (1.0 + p0))
+        with np.errstate(divide="ignore"):
+            e = np.where(omt > 0.0, -va * np.log(omt / (2.0 - omt)), e0)       # omt = 0: no motion (as the kernel)
+    else:
+        e = np.broadcast_to(e0, t.shape[:-1] + r.shape)
+    return w0 * step_V + ((step_V - e) * w).sum(-1)
+
+
+def _creep_rate(step_V, r, w0, w, va, nu, window_s=CREEP_WINDOW_S, n=41):
+    t = np.logspace(np.log10(window_s[0]), np.log10(window_s[1]), n)
+    x = _step_response(t, step_V, r, w0, w, va, nu)
+    return float(np.polyfit(np.log10(t / t[0]), x / x[0], 1)[0])
+
+
+@lru_cache(maxsize=64)
+def _activation_cached(per_decade, step_V, r, w0, w, tau_min_s):
+    ra, wa = np.asarray(r), np.asarray(w)
+
+    def excess(va):
+        return _creep_rate(step_V, ra, w0, wa, va, va / tau_min_s) - per_decade
+
+    grid = np.logspace(-4.0, np.log10(float(step_V)), 49)         # the first crossing from below
+    ex = np.array([excess(va) for va in grid])
+    above = np.flatnonzero(ex > 0.0)
+    if ex[0] >= 0.0 or above.size == 0:
+        raise ValueError(f"creep_per_decade: {per_decade} per decade is out of this operator set's reach after a "
+                         f"{step_V} V step (at most {ex.max() + per_decade:.4g})")
+    k = int(above[0])
+    return float(brentq(excess, grid[k - 1], grid[k], xtol=1e-12, rtol=1e-12))
+
+
+@lru_cache(maxsize=64)
+def _ramp_outputs_cached(r, va, nu, peak, rise_s, dt_s):
+    """Operator outputs at the last sample of a linear 0 -> peak ramp of rise_s from rest (clamped, as output)."""
+    ra = np.ascontiguousarray(r, dtype=float)
+    n = max(1, int(round(rise_s / dt_s)))
+    v = np.linspace(0.0, peak, n + 1)
+    z = np.zeros((1, ra.size))
+    om = np.ascontiguousarray(-np.expm1(-relaxation_rates(ra, va, nu) * dt_s))
+    play_run(v[:n, None].copy(), z, ra, np.zeros(ra.size), om, np.array([0.0, va]), np.empty((n, 1)))
+    return tuple(float(x) for x in np.minimum(np.maximum(z[0], peak - ra), peak + ra))
+
+
+def activation_voltage_for_creep(per_decade: float, step_V: float, thresholds_V, linear_weight: float, weights,
+                                 tau_min_s: float = C.CREEP_TAU_MIN_S) -> float:
+    """Activation voltage ``V_a`` whose open-loop creep after a step is ``per_decade`` (PI's law, 0.1-10 s).
+
+    Parameters
+    ----------
+    per_decade : float
+        Target ``gamma``: the least-squares slope of ``x(t) / x(0.1 s)``
+        against ``log10 t`` over 0.1-10 s (PI: 0.01-0.02).
+    step_V : float
+        Step from the virgin state, piezo volts (> 0).
+    thresholds_V, weights : sequence of float
+        Operator thresholds and weights.
+    linear_weight : float
+        ``w0``.
+    tau_min_s : float
+        Creep onset; the attempt rate is ``nu = V_a / tau_min_s``.
+
+    Returns
+    -------
+    float
+        ``V_a`` in volts: the smallest root of the closed-form relation
+        (:meth:`PiezoConfig.thermal_step_response`), bracketed on a log grid.
+    """
+    g, h, tm = float(per_decade), float(step_V), float(tau_min_s)
+    if not np.isfinite(g) or g <= 0:
+        raise ValueError(f"per_decade: expected a finite value > 0, got {per_decade}")
+    if not np.isfinite(h) or h <= 0:
+        raise ValueError(f"step_V: expected a finite value > 0, got {step_V}")
+    if not np.isfinite(tm) or tm <= 0:
+        raise ValueError(f"tau_min_s: expected a finite value > 0, got {tau_min_s}")
+    return _activation_cached(g, h, tuple(float(x) for x in thresholds_V), float(linear_weight),
+                              tuple(float(x) for x in weights), tm)
 
 
 def _as_float_tuple(name: str, value) -> tuple[float, ...]:
@@ -189,37 +381,71 @@ def _as_float_tuple(name: str, value) -> tuple[float, ...]:
     return tuple(float(x) for x in arr)
 
 
+def _optional_positive(name: str, value):
+    if value is None:
+        return None
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected None or a finite value > 0, got {value!r}") from None
+    if not np.isfinite(x) or x <= 0:
+        raise ValueError(f"{name}: expected None or a finite value > 0, got {value}")
+    return x
+
+
 @dataclass(frozen=True)
 class PiezoConfig:
-    """Parameters of the piezo hysteresis and creep model (per channel, shared).
+    """Parameters of the piezo model (per channel, shared by the channels).
 
     Parameters
     ----------
     hysteresis : bool
-        Apply the Prandtl-Ishlinskii hysteresis. Off: ``h = v_piezo``.
+        Apply the play operators. Off: ``h = v_piezo`` (creep, if on, is then
+        the linear Kelvin-Voigt law).
     pi_thresholds_V : tuple of float
-        Play-operator thresholds ``r_i`` in piezo volts, strictly increasing, > 0.
+        Operator thresholds ``r_i`` in piezo volts, strictly increasing, > 0.
     pi_weights : tuple of float
-        Play-operator weights ``w_i`` (dimensionless, >= 0), same length.
+        Operator weights ``w_i`` (dimensionless, >= 0), same length.
     pi_linear_weight : float
         Weight ``w0`` of the linear (zero-threshold) term, > 0.
     normalize_loop_slope : bool
-        Rescale ``w0`` and ``w_i`` so that the virgin-curve secant
-        ``h(loop_peak_V) / loop_peak_V`` equals 1 (the defaults already
-        satisfy it to 4 digits).
+        Rescale ``w0`` and ``w_i`` so that the secant ``h(loop_peak_V) /
+        loop_peak_V`` at the end of a ramp from rest of ``loop_rise_s`` equals 1
+        (:meth:`loop_secant`; without thermal activation, the virgin curve's).
     loop_peak_V : float
         Peak piezo voltage of the normalisation loop (33 V = 1.65 controller V).
+    loop_rise_s : float
+        Duration of the normalisation ramp, s (> 0; 1 s: the rising branch of
+        Fig. 14's 2 s loop, ``nanosim.experiments.hysteresis``).
     creep : bool
-        Apply the Kelvin-Voigt creep filter. Off: ``v_free = h``.
+        Creep on. With hysteresis and ``creep_model="thermal"``: thermally
+        activated operators; off: athermal operators (PI, ``V_a -> 0``).
+    creep_model : {"thermal", "kelvin_voigt"}
+        ``"thermal"``: creep from the operators' thermal activation (module
+        docstring). ``"kelvin_voigt"``: athermal operators followed by the
+        linear Kelvin-Voigt creep filter.
+    activation_V : float or None
+        Activation voltage ``V_a`` (V, > 0). None: derived from
+        ``creep_per_decade`` at ``creep_reference_V``
+        (:func:`activation_voltage_for_creep`).
+    attempt_rate_V_per_s : float or None
+        Attempt rate ``nu`` (V/s, > 0). None: ``V_a / CREEP_TAU_MIN_S`` (creep
+        onset at 1 ms, ``nanosim.constants``).
+    creep_per_decade : float
+        PI's creep factor gamma the activation voltage is derived from (> 0;
+        PI: 0.01-0.02 per decade; ``CREEP_PER_DECADE``).
+    creep_reference_V : float
+        Step (piezo V, > 0) after which the creep is ``creep_per_decade``: the
+        paper's Fig. 15 move (``CREEP_REFERENCE_STEP_PIEZO_V``).
     creep_gains : tuple of float
-        Creep stage gains ``c_k`` (>= 0), as fractions of the instantaneous
-        response. Default: :func:`log_creep_stages` with the constants'
-        ``CREEP_PER_DECADE`` (0.02), 1 ms ... 100 s, 2 stages per decade;
+        Kelvin-Voigt stage gains ``c_k`` (>= 0), as fractions of the
+        instantaneous response. Default: :func:`log_creep_stages` with
+        ``CREEP_PER_DECADE``, 1 ms ... 100 s, 2 stages per decade;
         :meth:`with_log_creep` builds other laws.
     creep_time_constants_s : tuple of float
-        Creep stage time constants ``tau_k`` in seconds (> 0).
+        Kelvin-Voigt time constants ``tau_k`` in seconds (> 0).
     normalize_creep_dc : bool
-        Scale the creep filter by ``1 / (1 + sum c_k)`` so its DC gain is 1.
+        Scale the Kelvin-Voigt filter by ``1 / (1 + sum c_k)`` so its DC gain is 1.
     """
 
     hysteresis: bool = True
@@ -228,7 +454,13 @@ class PiezoConfig:
     pi_linear_weight: float = _DEFAULT_LINEAR_WEIGHT
     normalize_loop_slope: bool = True
     loop_peak_V: float = DEFAULT_LOOP_PEAK_PIEZO_V
+    loop_rise_s: float = DEFAULT_LOOP_RISE_S
     creep: bool = True
+    creep_model: str = "thermal"
+    activation_V: float | None = None
+    attempt_rate_V_per_s: float | None = None
+    creep_per_decade: float = C.CREEP_PER_DECADE
+    creep_reference_V: float = C.CREEP_REFERENCE_STEP_PIEZO_V
     creep_gains: tuple = _LOG_CREEP_GAINS
     creep_time_constants_s: tuple = _LOG_CREEP_TAUS
     normalize_creep_dc: bool = True
@@ -248,6 +480,17 @@ class PiezoConfig:
         peak = float(self.loop_peak_V)
         if not np.isfinite(peak) or peak <= 0:
             raise ValueError(f"loop_peak_V: expected a finite value > 0, got {self.loop_peak_V}")
+        if self.creep_model not in CREEP_MODELS:
+            raise ValueError(f"creep_model: expected one of {', '.join(CREEP_MODELS)}, got {self.creep_model!r}")
+        rise = _optional_positive("loop_rise_s", self.loop_rise_s)
+        if rise is None:
+            raise ValueError("loop_rise_s: expected a finite value > 0, got None")
+        va = _optional_positive("activation_V", self.activation_V)
+        nu = _optional_positive("attempt_rate_V_per_s", self.attempt_rate_V_per_s)
+        gamma = _optional_positive("creep_per_decade", self.creep_per_decade)
+        ref = _optional_positive("creep_reference_V", self.creep_reference_V)
+        if gamma is None or ref is None:
+            raise ValueError("creep_per_decade, creep_reference_V: expected finite values > 0, got None")
         c = _as_float_tuple("creep_gains", self.creep_gains)
         tau = _as_float_tuple("creep_time_constants_s", self.creep_time_constants_s)
         if len(c) != len(tau):
@@ -256,12 +499,12 @@ class PiezoConfig:
             raise ValueError("creep_gains: expected values >= 0")
         if any(x <= 0 for x in tau):
             raise ValueError("creep_time_constants_s: expected values > 0")
-        object.__setattr__(self, "pi_thresholds_V", r)
-        object.__setattr__(self, "pi_weights", w)
-        object.__setattr__(self, "pi_linear_weight", w0)
-        object.__setattr__(self, "loop_peak_V", peak)
-        object.__setattr__(self, "creep_gains", c)
-        object.__setattr__(self, "creep_time_constants_s", tau)
+        for name, value in (("pi_thresholds_V", r), ("pi_weights", w), ("pi_linear_weight", w0),
+                            ("loop_peak_V", peak), ("loop_rise_s", rise), ("activation_V", va),
+                            ("attempt_rate_V_per_s", nu),
+                            ("creep_per_decade", gamma), ("creep_reference_V", ref), ("creep_gains", c),
+                            ("creep_time_constants_s", tau)):
+            object.__setattr__(self, name, value)
 
     @classmethod
     def linear(cls) -> "PiezoConfig":
@@ -269,37 +512,121 @@ class PiezoConfig:
         return cls(hysteresis=False, creep=False)
 
     @classmethod
-    def with_log_creep(cls, per_decade: float = C.CREEP_PER_DECADE, tau_min_s: float = C.CREEP_TAU_MIN_S,
-                       tau_max_s: float = C.CREEP_TAU_MAX_S, stages_per_decade: int = C.CREEP_STAGES_PER_DECADE,
-                       **overrides) -> "PiezoConfig":
-        """Config whose creep is the logarithmic law with these parameters (see :func:`log_creep_stages`)."""
-        gains, taus = log_creep_stages(per_decade, tau_min_s, tau_max_s, stages_per_decade)
-        return cls(creep_gains=gains, creep_time_constants_s=taus, **overrides)
+    def athermal(cls, **overrides) -> "PiezoConfig":
+        """The rate-independent Prandtl-Ishlinskii model: the same operators with ``V_a -> 0`` (no creep)."""
+        return cls(creep=False, **overrides)
+
+    @classmethod
+    def kelvin_voigt(cls, **overrides) -> "PiezoConfig":
+        """Athermal operators followed by the linear Kelvin-Voigt creep filter (two separate mechanisms)."""
+        return cls(creep_model="kelvin_voigt", **overrides)
 
     @classmethod
     def calibrated_v1(cls, **overrides) -> "PiezoConfig":
-        """The stage-v1 creep (10 % at 1/29 s, 1 % at 1 s and 10 s), for comparisons and ablations."""
-        return cls(creep_gains=_V1_CREEP_GAINS, creep_time_constants_s=_V1_CREEP_TAUS, **overrides)
+        """Athermal operators and Kelvin-Voigt creep placed at the paper's identified pole (10 % at 1/29 s, 1 %
+        at 1 s and 10 s; no source gives those gains), the ablation's comparison row.
+        """
+        return cls(creep_model="kelvin_voigt", creep_gains=_POLE_CREEP_GAINS, creep_time_constants_s=_POLE_CREEP_TAUS,
+                   **overrides)
+
+    @classmethod
+    def with_log_creep(cls, per_decade: float = C.CREEP_PER_DECADE, tau_min_s: float = C.CREEP_TAU_MIN_S,
+                       tau_max_s: float = C.CREEP_TAU_MAX_S, stages_per_decade: int = C.CREEP_STAGES_PER_DECADE,
+                       **overrides) -> "PiezoConfig":
+        """Config whose Kelvin-Voigt creep is the logarithmic law with these parameters (:func:`log_creep_stages`)."""
+        gains, taus = log_creep_stages(per_decade, tau_min_s, tau_max_s, stages_per_decade)
+        return cls(creep_gains=gains, creep_time_constants_s=taus, **overrides)
+
+    # -- which mechanisms run ------------------------------------------------
+    @property
+    def thermal(self) -> bool:
+        """True if the operators are thermally activated (hysteresis, creep, ``creep_model="thermal"``)."""
+        return self.hysteresis and self.creep and self.creep_model == "thermal"
+
+    @property
+    def linear_creep(self) -> bool:
+        """True if the Kelvin-Voigt creep filter runs (creep on, and no thermal operators)."""
+        return self.creep and not self.thermal
 
     # -- derived quantities -------------------------------------------------
     def hysteresis_weights(self) -> tuple[float, np.ndarray]:
         """Effective ``(w0, w)`` after the optional loop-slope normalisation."""
-        r = np.asarray(self.pi_thresholds_V, dtype=float)
         w = np.asarray(self.pi_weights, dtype=float)
         w0 = self.pi_linear_weight
         if self.normalize_loop_slope:
             peak = self.loop_peak_V
-            scale = peak / (w0 * peak + float(np.maximum(peak - r, 0.0) @ w))
+            scale = peak / (w0 * peak + float(self._ramp_outputs() @ w))
             w0, w = w0 * scale, w * scale
         return float(w0), w
 
-    def loop_slope(self, peak_piezo_V: float = DEFAULT_LOOP_PEAK_PIEZO_V) -> float:
-        """Secant ``h(peak) / peak`` of the virgin (initial loading) curve.
+    def _ramp_outputs(self) -> np.ndarray:
+        """Operator outputs at the end of the normalisation ramp (0 -> loop_peak_V in loop_rise_s, from rest)."""
+        r = np.asarray(self.pi_thresholds_V, dtype=float)
+        va, nu = self.activation()
+        if va == 0.0:
+            return np.maximum(self.loop_peak_V - r, 0.0)
+        return np.asarray(_ramp_outputs_cached(tuple(r), va, nu, self.loop_peak_V, self.loop_rise_s,
+                                               C.CONTROL_PERIOD_S))
 
-        This is the average slope of a slow ``0 -> peak -> 0`` loop started from
-        rest (hysteresis only, creep excluded) and the DC gain seen by a step
-        of ``peak`` volts from rest. Equals 1 at ``loop_peak_V`` when
-        ``normalize_loop_slope``. Returns 1 if hysteresis is off.
+    def loop_secant(self) -> float:
+        """``h(loop_peak_V) / loop_peak_V`` at the end of the normalisation ramp.
+
+        1 when normalised; 1 without hysteresis.
+        """
+        if not self.hysteresis:
+            return 1.0
+        w0, w = self.hysteresis_weights()
+        return float((w0 * self.loop_peak_V + self._ramp_outputs() @ w) / self.loop_peak_V)
+
+    def activation(self) -> tuple[float, float]:
+        """``(V_a, nu)``: activation voltage (V) and attempt rate (V/s); ``(0, 0)`` unless :attr:`thermal`."""
+        if not self.thermal:
+            return 0.0, 0.0
+        va = self.activation_V
+        if va is None:       # the relative creep does not depend on a common scale of w0 and w: raw weights
+            va = activation_voltage_for_creep(self.creep_per_decade, self.creep_reference_V, self.pi_thresholds_V,
+                                              self.pi_linear_weight, self.pi_weights, C.CREEP_TAU_MIN_S)
+        nu = self.attempt_rate_V_per_s if self.attempt_rate_V_per_s is not None else va / C.CREEP_TAU_MIN_S
+        return float(va), float(nu)
+
+    def thermal_step_response(self, step_V: float, t_s) -> np.ndarray:
+        """Operator output ``h(t)`` (V) at times ``t_s`` after a step of ``step_V`` from the virgin state.
+
+        Closed form of the continuous model: operator ``i`` is clamped to
+        ``z_0 = max(H - r_i, 0)``, ``u_0 = (H - z_0) / V_a``; then
+        ``tanh(u(t) / 2) = exp(-k_i t) tanh(u_0 / 2)``
+        (:func:`relaxation_rates`), ``z_i = H - V_a u`` and
+        ``h = w0 H + sum_i w_i z_i``. Without thermal activation the response
+        is the athermal virgin value at every ``t``. Requires hysteresis.
+        """
+        h = float(step_V)
+        if not np.isfinite(h) or h <= 0:
+            raise ValueError(f"step_V: expected a finite value > 0, got {step_V}")
+        if not self.hysteresis:
+            raise ValueError("hysteresis: the operator step response needs hysteresis=True")
+        t = as_finite_array("t_s", t_s)
+        w0, w = self.hysteresis_weights()
+        va, nu = self.activation()
+        return _step_response(t, h, np.asarray(self.pi_thresholds_V), w0, w, va, nu)
+
+    def creep_rate_per_decade(self, step_V: float | None = None) -> float:
+        """PI's creep factor gamma of :meth:`thermal_step_response` after ``step_V`` (default
+        ``creep_reference_V``): slope of ``x(t) / x(0.1 s)`` against ``log10 t`` over 0.1-10 s.
+        """
+        h = self.creep_reference_V if step_V is None else float(step_V)
+        if not np.isfinite(h) or h <= 0:
+            raise ValueError(f"step_V: expected a finite value > 0, got {step_V}")
+        w0, w = self.hysteresis_weights()
+        va, nu = self.activation()
+        return _creep_rate(h, np.asarray(self.pi_thresholds_V), w0, w, va, nu)
+
+    def loop_slope(self, peak_piezo_V: float = DEFAULT_LOOP_PEAK_PIEZO_V) -> float:
+        """Athermal secant ``h(peak) / peak`` of the virgin (initial loading) curve.
+
+        The instantaneous slope of a ``0 -> peak`` move from rest (hysteresis
+        only, before any creep); equals 1 at ``loop_peak_V`` when
+        ``normalize_loop_slope`` and no thermal activation (with it,
+        :meth:`loop_secant` is 1). Returns 1 if hysteresis is off.
         """
         peak = float(peak_piezo_V)
         if not np.isfinite(peak) or peak <= 0:
@@ -311,13 +638,14 @@ class PiezoConfig:
         return float((w0 * peak + np.maximum(peak - r, 0.0) @ w) / peak)
 
     def small_signal_gain(self, amplitude_piezo_V: float = 0.0) -> float:
-        """Secant gain of a minor loop of ``amplitude_piezo_V`` peak-to-peak.
+        """Athermal secant gain of a minor loop of ``amplitude_piezo_V`` peak-to-peak.
 
-        By the Masing property of the PI model the branch after a reversal is
-        ``w0 * d + sum_i w_i * max(d - 2 r_i, 0)`` for an excursion ``d``, at any
-        operating point. ``amplitude_piezo_V = 0`` gives the tangent gain ``w0``
-        (exact for loops below ``2 * min(r_i)`` peak-to-peak). Hysteresis only;
-        returns 1 if hysteresis is off.
+        By the Masing property of the athermal operators the branch after a
+        reversal is ``w0 * d + sum_i w_i * max(d - 2 r_i, 0)`` for an excursion
+        ``d``, at any operating point. ``amplitude_piezo_V = 0`` gives the
+        tangent gain ``w0`` right after a reversal (with thermal activation,
+        the gain at frequencies above the inverse age of the reversal).
+        Hysteresis only; returns 1 if hysteresis is off.
         """
         a = float(amplitude_piezo_V)
         if not np.isfinite(a) or a < 0:
@@ -331,15 +659,15 @@ class PiezoConfig:
         return float((w0 * a + np.maximum(a - 2.0 * r, 0.0) @ w) / a)
 
     def creep_dc_gain(self) -> float:
-        """DC gain of the creep filter (1 if normalised or creep off)."""
-        if not self.creep:
+        """DC gain of the Kelvin-Voigt filter (1 if normalised or not running)."""
+        if not self.linear_creep:
             return 1.0
         return 1.0 if self.normalize_creep_dc else 1.0 + float(sum(self.creep_gains))
 
     def creep_step_response(self, t_s) -> np.ndarray:
-        """Creep-filter output at times ``t_s`` (s) after a unit step of ``h`` from rest (continuous time)."""
+        """Kelvin-Voigt filter output at ``t_s`` (s) after a unit step of ``h`` from rest (1 if not running)."""
         t = as_finite_array("t_s", t_s)
-        if not self.creep:
+        if not self.linear_creep:
             return np.ones_like(t)
         c = np.asarray(self.creep_gains)
         tau = np.asarray(self.creep_time_constants_s)
@@ -347,35 +675,66 @@ class PiezoConfig:
         return y / (1.0 + c.sum()) if self.normalize_creep_dc else y
 
     def creep_instant_gain(self) -> float:
-        """High-frequency (instantaneous) gain of the creep filter."""
-        if not self.creep:
+        """High-frequency (instantaneous) gain of the Kelvin-Voigt filter (1 if not running)."""
+        if not self.linear_creep:
             return 1.0
         return 1.0 / (1.0 + float(sum(self.creep_gains))) if self.normalize_creep_dc else 1.0
 
+    def small_signal_creep(self) -> tuple[tuple, tuple, float]:
+        """``(c_k, tau_k, s)`` of the linear creep seen by small signals: ``s (1 + sum_k c_k / (tau_k s + 1))``.
 
-class PrandtlIshlinskii:
-    """Vectorised Prandtl-Ishlinskii hysteresis for several independent channels.
+        The Kelvin-Voigt filter itself when it runs; for thermal operators the
+        logarithmic law at ``creep_per_decade`` on top of the instantaneous
+        gain (``s = 1``: the tangent gain ``w0`` holds at high frequency and the
+        creep adds to it); ``((), (), 1)`` without creep.
+        """
+        if self.linear_creep:
+            c = tuple(self.creep_gains)
+            return c, tuple(self.creep_time_constants_s), (1.0 / (1.0 + sum(c)) if self.normalize_creep_dc else 1.0)
+        if self.thermal:
+            c, tau = log_creep_stages(self.creep_per_decade)
+            return c, tau, 1.0
+        return (), (), 1.0
+
+    def kernel_arrays(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(om, pp)`` for :func:`play_channel`: ``om = -expm1(-k dt)`` per operator, ``pp = (w0, V_a)``."""
+        w0, _ = self.hysteresis_weights()
+        va, nu = self.activation()
+        om = -np.expm1(-relaxation_rates(self.pi_thresholds_V, va, nu) * float(dt_s))
+        return np.ascontiguousarray(om), np.array([w0, va])
+
+
+class PlayOperators:
+    """Play operators, athermal or thermally activated, for several independent channels.
 
     Parameters
     ----------
     thresholds_V : sequence of float
-        Play thresholds ``r_i`` (> 0), volts.
+        Thresholds ``r_i`` (>= 0), volts.
     weights : sequence of float
-        Play weights ``w_i`` (>= 0).
+        Weights ``w_i`` (>= 0).
     linear_weight : float
         Weight ``w0`` of the linear term.
     n_channels : int
         Number of independent channels.
+    activation_V : float
+        Activation voltage ``V_a`` (>= 0; 0: athermal play operators).
+    attempt_rate_V_per_s : float
+        Attempt rate ``nu`` (> 0 when ``activation_V > 0``).
+    dt_s : float
+        Sample period (input zero-order held), seconds.
 
     Notes
     -----
-    State ``z`` has shape ``(n_channels, n_operators)``; ``reset`` puts it in the
-    virgin state ``z = 0`` (demagnetised piezo at 0 V). ``run`` advances the
-    state exactly as repeated ``step`` calls would (bit-identical outputs).
+    State ``z`` has shape ``(n_channels, n_operators)``; ``reset`` puts it in
+    the virgin state ``z = 0`` (demagnetised piezo at 0 V). ``step`` and
+    ``run`` call the same compiled routine (:func:`play_run`), so a run equals
+    repeated steps bit for bit.
     """
 
-    def __init__(self, thresholds_V: Sequence[float], weights: Sequence[float],
-                 linear_weight: float = 0.0, n_channels: int = 3):
+    def __init__(self, thresholds_V: Sequence[float], weights: Sequence[float], linear_weight: float = 0.0,
+                 n_channels: int = 3, activation_V: float = 0.0, attempt_rate_V_per_s: float = 0.0,
+                 dt_s: float = C.CONTROL_PERIOD_S):
         r = as_finite_array("thresholds_V", thresholds_V, ndim=1)
         w = as_finite_array("weights", weights, shape=(r.size,))
         if np.any(r < 0):
@@ -384,59 +743,60 @@ class PrandtlIshlinskii:
             raise ValueError("linear_weight: expected a finite value")
         if int(n_channels) < 1:
             raise ValueError(f"n_channels: expected >= 1, got {n_channels}")
+        va, nu, dt = float(activation_V), float(attempt_rate_V_per_s), float(dt_s)
+        if not np.isfinite(va) or va < 0:
+            raise ValueError(f"activation_V: expected a finite value >= 0, got {activation_V}")
+        if va > 0 and (not np.isfinite(nu) or nu <= 0):
+            raise ValueError(f"attempt_rate_V_per_s: expected a finite value > 0, got {attempt_rate_V_per_s}")
+        if not np.isfinite(dt) or dt <= 0:
+            raise ValueError(f"dt_s: expected a finite value > 0, got {dt_s}")
         self.n_channels = int(n_channels)
-        self._r = r.copy()
-        self._w = w.copy()
+        self._r = np.ascontiguousarray(r, dtype=float)
+        self._w = np.ascontiguousarray(w, dtype=float)
         self._w0 = float(linear_weight)
+        self._om = np.ascontiguousarray(-np.expm1(-relaxation_rates(self._r, va, nu) * dt))
+        self._pp = np.array([self._w0, va])
         self._z = np.zeros((self.n_channels, r.size))
 
     @property
     def operator_state(self) -> np.ndarray:
-        """Copy of the play-operator outputs, shape ``(n_channels, n_operators)``."""
+        """Copy of the operator outputs, shape ``(n_channels, n_operators)``."""
         return self._z.copy()
 
     def reset(self) -> None:
-        """Return to the virgin state (all play outputs 0)."""
+        """Return to the virgin state (all operator outputs 0)."""
         self._z[...] = 0.0
 
     def step(self, v_V) -> np.ndarray:
         """Advance one sample. ``v_V`` shape ``(n_channels,)``; returns ``h`` (same shape)."""
-        v = as_finite_array("v_V", v_V, shape=(self.n_channels,))
-        return self._step(v)
+        return self._step(as_finite_array("v_V", v_V, shape=(self.n_channels,)))
 
     def _step(self, v: np.ndarray) -> np.ndarray:
-        vc = v[:, None]
-        z = np.minimum(np.maximum(self._z, vc - self._r), vc + self._r)
-        self._z = z
-        return self._w0 * v + np.add.reduce(z * self._w, axis=-1)
+        out = np.empty((1, self.n_channels))
+        play_run(np.ascontiguousarray(v, dtype=float).reshape(1, -1), self._z, self._r, self._w, self._om, self._pp,
+                 out)
+        return out[0]
 
     def run(self, v_V) -> np.ndarray:
         """Advance over a sequence. ``v_V`` shape ``(N, n_channels)``; returns ``h``."""
-        v = as_finite_array("v_V", v_V, shape=(None, self.n_channels))
-        return self._run(v)
+        return self._run(as_finite_array("v_V", v_V, shape=(None, self.n_channels)))
 
     def _run(self, v: np.ndarray) -> np.ndarray:
-        n = v.shape[0]
+        v = np.ascontiguousarray(v, dtype=float)
         out = np.empty_like(v)
-        if self._r.size == 0:
-            out[...] = self._w0 * v
-            return out
-        z = self._z
-        for start in range(0, n, _RUN_BLOCK):
-            vb = v[start:start + _RUN_BLOCK]
-            lo = vb[:, :, None] - self._r
-            hi = vb[:, :, None] + self._r
-            zb = np.empty_like(lo)
-            maximum, minimum = np.maximum, np.minimum
-            for m in range(vb.shape[0]):
-                zm = zb[m]
-                maximum(z, lo[m], out=zm)
-                minimum(zm, hi[m], out=zm)
-                z = zm
-            out[start:start + vb.shape[0]] = self._w0 * vb + np.add.reduce(zb * self._w, axis=-1)
-            z = z.copy()
-        self._z = z
+        play_run(v, self._z, self._r, self._w, self._om, self._pp, out)
         return out
+
+
+class PrandtlIshlinskii(PlayOperators):
+    """Rate-independent (athermal) play operators: :class:`PlayOperators` with ``V_a = 0``.
+
+    ``z_i = clamp(z_i, v - r_i, v + r_i)``, ``h = w0 v + sum_i w_i z_i``.
+    """
+
+    def __init__(self, thresholds_V: Sequence[float], weights: Sequence[float], linear_weight: float = 0.0,
+                 n_channels: int = 3):
+        super().__init__(thresholds_V, weights, linear_weight, n_channels)
 
 
 class KelvinVoigtCreep:
@@ -520,7 +880,7 @@ class KelvinVoigtCreep:
 
 
 class PiezoModel:
-    """Hysteresis followed by creep for ``n_channels`` actuators.
+    """Play operators (thermal or athermal), then the optional linear creep filter, for ``n_channels`` actuators.
 
     Parameters
     ----------
@@ -537,14 +897,15 @@ class PiezoModel:
         self.n_channels = int(n_channels)
         self.dt_s = float(dt_s)
         w0, w = self.config.hysteresis_weights()
-        self.hysteresis = (PrandtlIshlinskii(self.config.pi_thresholds_V, w, w0, self.n_channels)
+        va, nu = self.config.activation()
+        self.hysteresis = (PlayOperators(self.config.pi_thresholds_V, w, w0, self.n_channels, va, nu, self.dt_s)
                            if self.config.hysteresis else None)
         self.creep = (KelvinVoigtCreep(self.config.creep_gains, self.config.creep_time_constants_s,
                                        self.dt_s, self.n_channels, self.config.normalize_creep_dc)
-                      if self.config.creep else None)
+                      if self.config.linear_creep else None)
 
     def reset(self) -> None:
-        """Virgin hysteresis state and no creep history."""
+        """Virgin operators and no creep history."""
         if self.hysteresis is not None:
             self.hysteresis.reset()
         if self.creep is not None:
