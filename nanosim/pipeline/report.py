@@ -462,7 +462,9 @@ def noise_budget_blocks(met: dict) -> list:
     return [("h", 2, "Noise budget (Fig. 16)"),
             ("p", f"Each source alone (every other source off, the piezo and the loop unchanged), "
                   f"{_fmt(b.get('record_s'))} s records on {b.get('axis', 'X')}; the open-loop record starts "
-                  f"{_fmt(b.get('open_loop_rest_s'))} s after the stage came to rest at home. Shares are of the sum "
+                  f"{_fmt(b.get('open_loop_rest_s'))} s after the stage came to rest at home, the closed-loop one "
+                  f"after the approach and a hold of {_fmt((b.get('closed_loop_protocol') or {}).get('hold_s'))} s. "
+                  "Shares are of the sum "
                   f"of variances; the sums over the measured totals are {_fmt(ratio.get('open_loop'))} (open loop), "
                   f"{_fmt(ratio.get('sensor'))} (closed loop, reading) and {_fmt(ratio.get('table'))} (closed loop, "
                   "table). The figure's third row shows each source's PSD."),

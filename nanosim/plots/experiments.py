@@ -89,11 +89,12 @@ def fig_resolution(r):
         key = "open_loop_nm" if j == 0 else "sensor_nm"
         for name, (f, po, pc) in spectra.items():
             p = po if j == 0 else pc
-            if p is None or not np.any(p[1:] > 0):
-                continue
             sig = rows_b.get(name, {}).get(key)
+            if p is None or not np.any(p[1:] > 0) or (sig is not None and sig < 1e-6):
+                continue                                  # a source that does not move this record
             a.loglog(f[1:], p[1:], lw=0.8, label=f"{name}: {sig:.2f} nm" if sig is not None else name)
         a.loglog(r.psd_freq_hz[1:], psd[1:], color="k", lw=1.0, label="all sources")
+        a.set_ylim(bottom=psd[1:].min() * 1e-3)
         a.set_xlabel("frequency (Hz)")
         a.set_ylabel("PSD (nm^2/Hz)")
         a.set_title(f"({'ef'[j]}) {lab.replace('_', ' ')} per source (one on at a time)", fontsize=9)
