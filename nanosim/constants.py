@@ -15,6 +15,7 @@ __all__ = ["CONTROL_RATE_HZ", "CONTROL_PERIOD_S", "AMPLIFIER_GAIN", "COMMAND_RAN
            "CREEP_STAGES_PER_DECADE",
            "COMPUTATION_DELAY_SAMPLES", "AMPLIFIER_BANDWIDTH_HZ",
            "AMPLIFIER_NOISE_V", "DAC_WHITE_NOISE_V", "DAC_BITS", "DAC_FULL_SCALE_V", "DAC_CENTER_V",
+           "BROADBAND_INPUT_NOISE_V",
            "THERMAL_EXPANSION_DIFF_PER_K", "THERMAL_LOOP_LENGTH_M", "THERMAL_DRIFT_TAU_S", "THERMAL_AIR_TAU_S",
            "THERMAL_DRIFT_K_RMS",
            "THERMAL_DRIFT_K_BOUNDS", "DAC_FLICKER_CORNER_HZ", "GAUGE_BANDWIDTH_HZ",
@@ -92,6 +93,11 @@ DAC_CENTER_V = 0.0
 # converters of that class (AD5781, 7.5 nV/rtHz plus the +/-10 V output stage) are quieter, so this is
 # the upper end. 120e-9 * sqrt(2000) = 5.37 uV.
 DAC_WHITE_NOISE_V = 120e-9 * np.sqrt(CONTROL_RATE_HZ / 2)
+# Every broadband input-side source per sample in all (controller V): DAC white noise, the DAC's
+# quantization as if dithered (LSB / sqrt(12)) and the amplifier's input-referred noise, added in
+# variance (the level a model-based design can take as its input noise).
+BROADBAND_INPUT_NOISE_V = float(np.sqrt(DAC_WHITE_NOISE_V ** 2 + (2 * DAC_FULL_SCALE_V / 2 ** DAC_BITS) ** 2 / 12
+                                        + AMPLIFIER_NOISE_V ** 2))
 # 1/f corner of that noise: estimate [E] in [1, 100] Hz, typical of precision op-amp/reference
 # output stages (the AD669 datasheet gives the density at 1 kHz only); 10 Hz, the geometric middle.
 DAC_FLICKER_CORNER_HZ = 10.0

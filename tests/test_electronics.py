@@ -371,6 +371,7 @@ def test_default_dac_is_18_bits_over_10_volts_and_its_dithered_quantization_is_i
     # every broadband input source in all (quantisation, DAC white, amplifier) at most ~30 uV per sample
     broadband = np.sqrt(e.dac_quantization_rms_V ** 2 + e.dac_noise_V ** 2 + e.amplifier_noise_V ** 2)
     assert broadband < 30e-6
+    assert_allclose(C.BROADBAND_INPUT_NOISE_V, broadband, rtol=1e-12)
     # a 16-bit DAC over the same range would alone be three times that
     assert ElectronicsConfig(dac_bits=16).dac_quantization_rms_V > 80e-6
     # the DAC white noise is the AD669-class density over the Nyquist band
