@@ -251,7 +251,7 @@ def test_twin_and_mujoco_stage_share_the_floor_series(model, twin):
 def test_noise_budget_adds_up_on_the_twin(model, twin):
     """One source at a time: the variances add up to the all-sources variance (linear plant)."""
     from nanosim.experiments.loop import run_closed_loop
-    from nanosim.experiments.resolution import noise_budget, noise_sources
+    from nanosim.experiments.resolution import RESOLUTION_PROTOCOL, noise_budget, noise_sources
     from nanosim.plant.floor import floor_model
     from nanosim.plant.twin import TwinStage
     from nanosim.design.controller import ControllerConfig, DiscreteController
@@ -263,6 +263,7 @@ def test_noise_budget_adds_up_on_the_twin(model, twin):
                                             Dkd=np.zeros((3, 3)), dt=1 / 4000))
     st = TwinStage(twin, seed=2, config=cfg, home_um=Stage(model=model).table_um, floor_model=floor_model(model))
     rows = noise_budget(st, K, seed=2, duration_s=3.0, open_loop=False)
-    total = run_closed_loop(st.variant(cfg, 2), K, np.zeros((12000, 3))).y_um[:, 0].std() * 1e3
+    total = run_closed_loop(st.variant(cfg, 2), K, np.zeros((12000, 3)),
+                            protocol=RESOLUTION_PROTOCOL).y_um[:, 0].std() * 1e3
     assert_allclose(np.sqrt(sum(r["sensor_nm"] ** 2 for r in rows.values())), total, rtol=0.05)
     assert_allclose(sum(r["sensor_share"] for r in rows.values()), 1.0, rtol=1e-12)
