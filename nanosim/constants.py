@@ -14,7 +14,11 @@ __all__ = ["CONTROL_RATE_HZ", "CONTROL_PERIOD_S", "AMPLIFIER_GAIN", "COMMAND_RAN
            "PIEZO_FORCE_PER_PIEZO_V", "CREEP_PER_DECADE", "CREEP_TAU_MIN_S", "CREEP_TAU_MAX_S",
            "CREEP_STAGES_PER_DECADE", "CREEP_REFERENCE_STEP_PIEZO_V",
            "COMPUTATION_DELAY_SAMPLES", "AMPLIFIER_BANDWIDTH_HZ",
-           "AMPLIFIER_NOISE_V", "DAC_WHITE_NOISE_V", "DAC_FLICKER_CORNER_HZ", "GAUGE_BANDWIDTH_HZ",
+           "AMPLIFIER_NOISE_V", "DAC_WHITE_NOISE_V", "DAC_BITS", "DAC_FULL_SCALE_V", "DAC_CENTER_V",
+           "BROADBAND_INPUT_NOISE_V",
+           "THERMAL_EXPANSION_DIFF_PER_K", "THERMAL_LOOP_LENGTH_M", "THERMAL_DRIFT_TAU_S", "THERMAL_AIR_TAU_S",
+           "THERMAL_DRIFT_K_RMS",
+           "THERMAL_DRIFT_K_BOUNDS", "DAC_FLICKER_CORNER_HZ", "GAUGE_BANDWIDTH_HZ",
            "GAUGE_FILTER_ORDER", "FLOOR_ACCEL_PSD_M2_S4_HZ", "FLOOR_VC_C_VELOCITY_UM_S", "FLOOR_TABLE_PLATEAU",
            "SENSOR_UM_PER_V", "SENSOR_RANGE_UM",
            "SENSOR_NOISE_NM_RMS_1KHZ",
@@ -77,18 +81,31 @@ AMPLIFIER_BANDWIDTH_HZ = 10e3
 # PD200 0.7 mV rms at the output into 10 uF (ENBW 1.57 x 7.4 kHz) -> 6.5 uV/sqrt(Hz) at the
 # piezo -> 0.33 uV/sqrt(Hz) at the input -> 14.5 uV rms over 2 kHz.
 AMPLIFIER_NOISE_V = 14.5e-6
-# DAC electrical noise, the standard electronic-noise spectrum e_n^2 (1 + f_c / f): the paper says
-# most of its noise came from the DAC and that this "high frequency noise will vibrate the stage"
-# (Sec. 5). The level is the ONE noise level fitted to the paper: the open-loop probe sigma at rest,
-# 11.4 nm, as the mean variance over 20 stages' X and Y probes (tools/fit_dac_noise.py, streams
-# of its own), with every other source at its sourced level. Controller V per
-# sample, white part (a datasheet-level 16-18 bit DAC alone gives ~10-50 uV; the fitted level is
-# 5-25x that, i.e. interference, reference and ground noise, as the paper suspected). Fitted
-# without bounds; inside mjcf/SOURCES.md item 6's range of 20 uV - 2 mV; 15 held-out stages
-# give 11.68 nm (tests/test_stage.py asserts within 7.5 % of 11.4 nm).
-DAC_WHITE_NOISE_V = 2.54e-4
+# DAC: the UMAC's analog-output board (the paper names the UMAC and its ACC-28E 16-bit ADC, not the DAC
+# board; the UMAC analog servo interface ACC-24E2A has 18-bit DACs over +/-10 V, mjcf/SOURCES.md item 6;
+# no datasheet of the paper's board in reach). Resolution bounded to [16, 18] bits over +/-10 V; 18 bits:
+# LSB 76 uV, 22 uV rms when dithered. The paper's own pair of sigmas bounds it from the other side: a
+# dithered 16-bit DAC over +/-10 V (LSB 305 uV, 88 uV rms) is three times the ~30 uV of broadband input
+# noise that its closed-loop 1.89 nm leaves room for. Undithered (the other input noise is below one LSB)
+# the quantizer in the loop is no white source; its closed-loop share is measured by the noise budget
+# (nanosim.experiments.resolution, "DAC quantization").
+DAC_BITS = 18
+DAC_FULL_SCALE_V = 10.0
+DAC_CENTER_V = 0.0
+# DAC electrical noise, the standard electronic-noise spectrum e_n^2 (1 + f_c / f), white part per sample
+# over the 2 kHz Nyquist band: e_n sqrt(fs / 2). e_n = 120 nV/sqrt(Hz): the output noise density of a
+# monolithic 16-bit +/-10 V DAC with its output amplifier (Analog Devices AD669 datasheet, "output noise
+# voltage density 120 nV/rtHz"), the class of converter on a UMAC analog-output board; 18-bit
+# converters of that class (AD5781, 7.5 nV/rtHz plus the +/-10 V output stage) are quieter, so this is
+# the upper end. 120e-9 * sqrt(2000) = 5.37 uV.
+DAC_WHITE_NOISE_V = 120e-9 * np.sqrt(CONTROL_RATE_HZ / 2)
+# Every broadband input-side source per sample in all (controller V): DAC white noise, the DAC's
+# quantization as if dithered (LSB / sqrt(12)) and the amplifier's input-referred noise, added in
+# variance (the level a model-based design can take as its input noise).
+BROADBAND_INPUT_NOISE_V = float(np.sqrt(DAC_WHITE_NOISE_V ** 2 + (2 * DAC_FULL_SCALE_V / 2 ** DAC_BITS) ** 2 / 12
+                                        + AMPLIFIER_NOISE_V ** 2))
 # 1/f corner of that noise: estimate [E] in [1, 100] Hz, typical of precision op-amp/reference
-# output stages (no datasheet: the paper does not name the DAC); 10 Hz, the geometric middle.
+# output stages (the AD669 datasheet gives the density at 1 kHz only); 10 Hz, the geometric middle.
 DAC_FLICKER_CORNER_HZ = 10.0
 # Capacitive gauge (ADE 2805 probe + 4810 module) output filter: not in the paper; gauging
 # modules of that class offer ~100 Hz ... 5 kHz (Queensgate NanoSensor: 50/500/5000 Hz); the
@@ -109,6 +126,30 @@ FLOOR_ACCEL_PSD_M2_S4_HZ = 3e-11
 # (0.01, -40 dB); nanosim.plant.floor.vc_accel_psd turns it into an acceleration PSD at a frequency.
 FLOOR_VC_C_VELOCITY_UM_S = 12.5
 FLOOR_TABLE_PLATEAU = 0.01
+
+# --- low-frequency drift: thermal expansion of the actuated legs (nanosim.plant.electronics) ----------
+# Each leg's temperature deviation follows the chamber air near it: the air's temperature fluctuation is a
+# first-order (Ornstein-Uhlenbeck) process, and the leg follows it through its own heat diffusion, a
+# first-order lag; the leg's temperature is therefore a second-order process whose spectrum falls as f^-4
+# above both corners. Its elongation is the differential
+# expansion of the aluminium frame (7075-T6, CTE 23.4e-6/K; ASM handbook) against the APA35XS actuator
+# (steel shell, 12e-6/K; Cedrat APA datasheet class) over the actuator's mounted length (hinge centre to
+# hinge centre, the actuator's length_m in nanosim.plant.geometry, 15 mm); it lengthens the actuator's
+# stroke like a free-strain change, referred to controller volts by the free stroke per volt.
+THERMAL_EXPANSION_DIFF_PER_K = 23.4e-6 - 12e-6
+THERMAL_LOOP_LENGTH_M = 15.0e-3
+# The leg's lag: the diffusion time d^2 / a of a d = 5 mm aluminium link (a = 9.7e-5 m^2/s, 7075 thermal
+# diffusivity) is 0.26 s; estimate [E] in [0.1, 1] s. The air's correlation time: the turnover of the
+# convection in the sealed chamber, estimate [E] in [0.1, 3] s; 0.5 s.
+THERMAL_DRIFT_TAU_S = 0.26
+THERMAL_AIR_TAU_S = 0.5
+# rms temperature fluctuation of each leg, K: the ONE level calibrated to the paper, the open-loop probe
+# sigma at rest, 11.4 nm (tools/fit_drift_level.py: mean variance over the X and Y probes of 20 stages
+# on streams of their own), with every broadband source at its datasheet level. Calibrated within
+# [THERMAL_DRIFT_K_BOUNDS]: a sealed chamber on an isolated table in an air-conditioned laboratory, whose
+# air holds +/-0.1 K (HVAC class), at most that; at least 1 mK.
+THERMAL_DRIFT_K_RMS = 0.0682
+THERMAL_DRIFT_K_BOUNDS = (1e-3, 0.1)
 
 # --- capacitance gauges and ADC (paper Sec. 2-3) -----------------------------
 SENSOR_UM_PER_V = 5.0

@@ -10,7 +10,7 @@ import pytest
 
 from nanosim.design.controller import ControllerConfig, DiscreteController
 from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
-from nanosim.experiments.loop import run_closed_loop
+from nanosim.experiments.loop import LoopProtocol, run_closed_loop
 from nanosim.plant import batch_kernel
 from nanosim.plant.batch import BatchTwinStage, member_products
 from nanosim.plant.filters import FlickerShaper
@@ -20,6 +20,8 @@ from nanosim.plant.modes import modal_analysis
 from nanosim.plant.stage import Stage, StageConfig
 from nanosim.plant.tolerances import default_tolerances, sample_model
 from nanosim.plant.twin import TwinStage
+
+SHORT = LoopProtocol(0.03, 0.02)        # a short approach and hold: the loops' start, not their settling
 
 pytestmark = pytest.mark.skipif(not batch_kernel.AVAILABLE, reason="numba is not installed")
 
@@ -97,7 +99,7 @@ def test_compiled_closed_loop_equals_numpy_path(plants, exact, two_dof):
     def run(compiled):
         st = BatchTwinStage([p["twin"] for p in plants], [4, 11], home_um=np.array([p["home"] for p in plants]),
                             floor_models=[p["floor"] for p in plants], exact=exact, compiled=compiled)
-        tr = run_closed_loop_batch(st, BatchController(ctrls, exact=exact), _ref(), settle_s=0.05)
+        tr = run_closed_loop_batch(st, BatchController(ctrls, exact=exact), _ref(), protocol=SHORT)
         return tr, st
 
     (fast, st_f), (slow, st_s) = run(True), run(False)
@@ -117,7 +119,7 @@ def test_compiled_shared_twin_and_controller_fast_products(plants):
 
     def run(compiled):
         st = BatchTwinStage(p["twin"], [1, 2, 3], home_um=p["home"], exact=False, compiled=compiled)
-        return run_closed_loop_batch(st, BatchController(c, n=3, exact=False), _ref(), settle_s=0.05)
+        return run_closed_loop_batch(st, BatchController(c, n=3, exact=False), _ref(), protocol=SHORT)
 
     for a, b in zip(run(True), run(False)):
         for k in FIELDS:
@@ -127,12 +129,12 @@ def test_compiled_shared_twin_and_controller_fast_products(plants):
 @pytest.mark.parametrize("two_dof", [False, True])
 def test_compiled_batch_of_one_equals_single_stage(plants, two_dof):
     p = plants[1]
-    c = _controller(p["G0"], two_dof, 20.0)
+    c = _controller(p["G0"], two_dof, 30.0)
     st = BatchTwinStage([p["twin"]], [9], home_um=p["home"], floor_models=[p["floor"]])
-    (got,) = run_closed_loop_batch(st, BatchController([c]), _ref(), settle_s=0.05)
+    (got,) = run_closed_loop_batch(st, BatchController([c]), _ref(), protocol=SHORT)
     assert batch_kernel.supported(st)
     ref = run_closed_loop(TwinStage(p["twin"], seed=9, home_um=p["home"], floor_model=p["floor"]),
-                          DiscreteController(c), _ref(), settle_s=0.05)
+                          DiscreteController(c), _ref(), protocol=SHORT)
     for k in FIELDS:
         assert np.array_equal(getattr(got, k), getattr(ref, k)), k
     assert got.saturated.any()          # the comparison covers saturation
@@ -147,10 +149,10 @@ def test_compiled_loop_across_noise_chunks_equals_numpy_path_and_single_stage(pl
     for compiled in (True, False):
         st = BatchTwinStage([p["twin"]] * 2, [4, 5], home_um=p["home"], floor_models=[p["floor"]] * 2)
         st.run(np.full((2, 1234, 3), 0.3))
-        got[compiled] = run_closed_loop_batch(st, BatchController([c, c]), ref, settle_s=0.05, compiled=compiled)
+        got[compiled] = run_closed_loop_batch(st, BatchController([c, c]), ref, protocol=SHORT, compiled=compiled)
     single = TwinStage(p["twin"], seed=5, home_um=p["home"], floor_model=p["floor"])
     single.run(np.full((1234, 3), 0.3))
-    one = run_closed_loop(single, DiscreteController(c), ref, settle_s=0.05)
+    one = run_closed_loop(single, DiscreteController(c), ref, protocol=SHORT)
     for k in FIELDS:
         for b in range(2):
             assert np.array_equal(getattr(got[True][b], k), getattr(got[False][b], k)), (b, k)

@@ -14,14 +14,13 @@ LSB_V = 20.0 / 2 ** 16
 
 
 def quiet(**kw):
-    """Default converters and amplifier clipping, without noise, delay or analogue filters.
+    """A 16-bit +/-10 V DAC and the default ADC and amplifier clipping, without noise, drift, delay or filters.
 
-    (Stage v2 added a one-sample computation delay, amplifier and gauge
-    bandwidths and amplifier noise to the defaults; they have their own tests
-    below, and these exact quantisation/saturation checks need them off.)
+    (The computation delay, the amplifier and gauge bandwidths and every noise have their own tests
+    below; these exact quantisation/saturation checks need them off.)
     """
-    base = dict(dac_noise=False, sensor_noise=False, amplifier_noise=False, computation_delay_samples=0,
-                amplifier_bandwidth_Hz=None, gauge_bandwidth_Hz=None)
+    base = dict(dac_bits=16, dac_noise=False, sensor_noise=False, amplifier_noise=False, thermal_drift=False,
+                computation_delay_samples=0, amplifier_bandwidth_Hz=None, gauge_bandwidth_Hz=None)
     base.update(kw)
     return ElectronicsConfig(**base)
 
@@ -335,7 +334,8 @@ def test_shaped_dac_noise_step_equals_run_bit_for_bit():
 
 
 def test_dac_spanning_command_range_has_finer_lsb_and_exact_ends():
-    e = ElectronicsConfig.ideal(dac_quantization=True, saturation=True, dac_full_scale_V=4.25, dac_center_V=3.25)
+    e = ElectronicsConfig.ideal(dac_quantization=True, saturation=True, dac_bits=16, dac_full_scale_V=4.25,
+                                dac_center_V=3.25)
     np.testing.assert_allclose(e.dac_lsb_V, 8.5 / 2**16, rtol=1e-12)
     s = ActuatorChain(e, PiezoConfig.linear()).run(np.array([[-1.0, 1.0, 7.6]]))
     np.testing.assert_allclose(s.u_dac_V[0, 0], -1.0, atol=1e-15)
@@ -343,7 +343,65 @@ def test_dac_spanning_command_range_has_finer_lsb_and_exact_ends():
     assert s.saturated[0].tolist() == [False, False, True]
 
 
-# --- the bench loop of stage v2: delay, amplifier bandwidth, gauge filter, noise spectra --------
+# --- the DAC's stated resolution and range, the legs' thermal drift ---------------------------------
+
+def test_default_dac_is_18_bits_over_10_volts_and_its_dithered_quantization_is_inside_the_input_budget():
+    e = ElectronicsConfig()
+    assert (e.dac_bits, e.dac_full_scale_V, e.dac_center_V) == (C.DAC_BITS, C.DAC_FULL_SCALE_V, C.DAC_CENTER_V)
+    assert_allclose(e.dac_lsb_V, 20.0 / 2 ** 18, rtol=1e-15)
+    assert_allclose(e.dac_quantization_rms_V, 20.0 / 2 ** 18 / np.sqrt(12), rtol=1e-15)    # 22.0 uV
+    # every broadband input source in all (quantisation, DAC white, amplifier) at most ~30 uV per sample
+    broadband = np.sqrt(e.dac_quantization_rms_V ** 2 + e.dac_noise_V ** 2 + e.amplifier_noise_V ** 2)
+    assert broadband < 30e-6
+    assert_allclose(C.BROADBAND_INPUT_NOISE_V, broadband, rtol=1e-12)
+    # a 16-bit DAC over the same range would alone be three times that
+    assert ElectronicsConfig(dac_bits=16).dac_quantization_rms_V > 80e-6
+    # the DAC white noise is the AD669-class density over the Nyquist band
+    assert_allclose(e.dac_noise_V, 120e-9 * np.sqrt(2000.0), rtol=1e-12)
+
+
+def _drift_chain(seed=3, **kw):
+    e = ElectronicsConfig.ideal(thermal_drift=True, **kw)
+    return e, ActuatorChain(e, PiezoConfig.linear(), seed=seed)
+
+
+def test_thermal_drift_level_is_the_differential_expansion_over_the_free_stroke():
+    e = ElectronicsConfig.ideal(thermal_drift=True, thermal_drift_K=0.01)
+    elongation_m = (23.4e-6 - 12e-6) * 15e-3 * 0.01                # d_alpha L sigma_T
+    assert_allclose(e.thermal_drift_V, elongation_m / (55e-6 / 150.0) / 20.0, rtol=1e-12)
+    assert ElectronicsConfig.ideal().thermal_drift_V == 0.0
+
+
+def test_thermal_drift_is_a_stationary_second_order_process_with_its_rms_and_spectrum():
+    # the air: AR(1) with tau_air; the leg: a first-order lag tau_leg of it; scaled to the leg's rms
+    e, ch = _drift_chain(thermal_drift_tau_s=0.02, thermal_air_tau_s=0.05)
+    n = 400_000                                                      # 100 s = 2000 air correlation times
+    x = ch.run(np.zeros((n, 3))).u_dac_V / e.thermal_drift_V
+    assert_allclose(x.var(axis=0), 1.0, rtol=0.12)
+    # autocorrelation of the lag of an OU process: (t1 e^{-k/t1} - t2 e^{-k/t2}) / (t1 - t2), k in seconds
+    t1, t2 = 0.05, 0.02
+    for lag_s in (0.01, 0.05, 0.1):
+        k = int(round(lag_s * e.sample_rate_Hz))
+        want = (t1 * np.exp(-lag_s / t1) - t2 * np.exp(-lag_s / t2)) / (t1 - t2)
+        got = np.mean(x[k:] * x[:-k], axis=0) / x.var(axis=0)
+        assert_allclose(got, want, atol=0.05), lag_s
+    # stationary from the first sample: the first samples of 400 streams have unit variance
+    first = np.array([_drift_chain(seed=s, thermal_drift_tau_s=0.02, thermal_air_tau_s=0.05)[1].step(np.zeros(3))
+                      .u_dac_V for s in range(400)]) / e.thermal_drift_V
+    assert_allclose(first.var(), 1.0, rtol=0.15)                     # 1200 deviates: 4 % relative std
+
+
+def test_thermal_drift_step_equals_run_and_reset_replays():
+    _, a = _drift_chain()
+    _, b = _drift_chain()
+    r = a.run(np.zeros((5000, 3))).u_dac_V
+    s = np.array([b.step(np.zeros(3)).u_dac_V for _ in range(5000)])
+    assert_array_equal(r, s)
+    a.reset()
+    assert_array_equal(a.run(np.zeros((5000, 3))).u_dac_V, r)
+
+
+# --- the bench loop: delay, amplifier bandwidth, gauge filter, noise spectra --------
 
 def test_computation_delay_shifts_the_command_by_whole_samples():
     u = np.random.default_rng(4).uniform(0, 3, (200, 3))

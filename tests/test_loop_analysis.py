@@ -555,7 +555,7 @@ def test_loop_as_run_is_the_record_row_plant_delayed_by_one_sample():
     from types import SimpleNamespace
 
     from nanosim.design.controller import DiscreteController
-    from nanosim.experiments.loop import run_closed_loop
+    from nanosim.experiments.loop import LoopProtocol, run_closed_loop
     from nanosim.plant.stage import StageConfig
     from nanosim.plant.twin import TwinStage
 
@@ -567,7 +567,7 @@ def test_loop_as_run_is_the_record_row_plant_delayed_by_one_sample():
     n = 200
     r = np.zeros((n, 3))
     r[10:] = [0.5, -0.3, 0.2]                                      # um
-    y = run_closed_loop(st, ctrl, r, settle=False).y_um
+    y = run_closed_loop(st, ctrl, r, protocol=LoopProtocol(0.0, 0.0)).y_um
     err = {}
     for d in (0, 1, 2):
         T = la.loop_transfer_ss(la.LoopPlant.twin(Gd).G, K, Ky, delay_samples=d).T_ry
@@ -584,7 +584,7 @@ def test_bench_electronics_add_their_delay_and_filters_to_the_loop_as_run():
     from types import SimpleNamespace
 
     from nanosim.design.controller import DiscreteController
-    from nanosim.experiments.loop import run_closed_loop
+    from nanosim.experiments.loop import LoopProtocol, run_closed_loop
     from nanosim.plant.electronics import ElectronicsConfig
     from nanosim.plant.stage import StageConfig
     from nanosim.plant.twin import TwinStage
@@ -598,7 +598,7 @@ def test_bench_electronics_add_their_delay_and_filters_to_the_loop_as_run():
     ctrl = DiscreteController.from_matrices(K2.A, K2.B, K2.C, K2.D, Gd.dt, n_error=3)
     r = np.zeros((200, 3))
     r[10:] = [0.5, -0.3, 0.2]
-    y = run_closed_loop(st, ctrl, r, settle=False).y_um
+    y = run_closed_loop(st, ctrl, r, protocol=LoopProtocol(0.0, 0.0)).y_um
     plant = la.LoopPlant.twin(Gd, elec)
     assert plant.delay_samples == 2
     T = la.loop_transfer_ss(plant.G, K, Ky, delay_samples=plant.delay_samples).T_ry

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nanosim import experiments
-from nanosim.experiments.loop import run_closed_loop
+from nanosim.experiments.loop import LoopProtocol, run_closed_loop
 from nanosim.experiments.registry import Experiment, register, unregister
 from nanosim.fileio import write_npz
 from nanosim.pipeline.characterize import run_characterize
@@ -14,7 +14,7 @@ from nanosim.pipeline.config import CharacterizeConfig
 
 def _dummy_run(ctx):
     """Hold the origin for 50 ms in closed loop and return the rms of the reading."""
-    cl = run_closed_loop(ctx.factory(ctx.seed), ctx.controller, np.zeros((200, 3)), settle_s=0.05)
+    cl = run_closed_loop(ctx.factory(ctx.seed), ctx.controller, np.zeros((200, 3)), protocol=LoopProtocol(0.03, 0.02))
     return float(np.sqrt(np.mean(cl.y_um[:, 0] ** 2)) * 1e3)
 
 

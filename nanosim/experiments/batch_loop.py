@@ -4,8 +4,9 @@
 :class:`~nanosim.design.controller.ControllerConfig` or one per member) and
 steps them with one batched matrix product. :func:`run_closed_loop_batch` is
 :func:`nanosim.experiments.loop.run_closed_loop` over the members of a batch
-stage (:mod:`nanosim.plant.batch`), with the same settle ramp, the same
-equilibrium reset of a two-degree-of-freedom controller and the same record.
+stage (:mod:`nanosim.plant.batch`), with the same start
+(:class:`~nanosim.experiments.loop.LoopProtocol`: every member's controller
+started at its reading, the approach, the hold) and the same record.
 
 On a :class:`~nanosim.plant.batch.BatchTwinStage` the loop runs compiled
 (:mod:`nanosim.plant.batch_kernel`, numba) with the same operations and products
@@ -22,9 +23,8 @@ from __future__ import annotations
 import numpy as np
 
 from nanosim.design.controller import ControllerConfig, DiscreteController, bumpless_state
-from nanosim.experiments.loop import FS, SETTLE_S, UM_PER_V, LoopTrace
+from nanosim.experiments.loop import FS, LOOP_PROTOCOL, UM_PER_V, LoopProtocol, LoopTrace
 from nanosim.plant import batch_kernel
-from nanosim.ramps import raised_cosine
 
 __all__ = ["BatchController", "run_closed_loop_batch"]
 
@@ -148,8 +148,8 @@ class BatchController:
         return out[:, ns:]          # a view of a buffer the next call overwrites
 
 
-def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle: bool = True,
-                          settle_s: float = SETTLE_S, compiled: bool = True) -> list[LoopTrace]:
+def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, protocol: LoopProtocol = LOOP_PROTOCOL,
+                          compiled: bool = True) -> list[LoopTrace]:
     """:func:`~nanosim.experiments.loop.run_closed_loop` on every member of a batch stage.
 
     Parameters
@@ -159,8 +159,8 @@ def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle:
         Same number of members as ``stage``.
     ref_um : array_like, shape (N, 3) or (B, N, 3)
         Reference of every member (um from the probe origin).
-    settle, settle_s
-        As in :func:`~nanosim.experiments.loop.run_closed_loop`.
+    protocol : LoopProtocol
+        The start of the record, as in :func:`~nanosim.experiments.loop.run_closed_loop`.
     compiled : bool
         True (default): a :class:`~nanosim.plant.batch.BatchTwinStage` runs in the compiled loop
         (:mod:`nanosim.plant.batch_kernel`, numba) when numba is installed; equal to the numpy path to
@@ -171,6 +171,8 @@ def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle:
     list of LoopTrace
         One per member.
     """
+    if not isinstance(protocol, LoopProtocol):
+        raise ValueError(f"protocol: expected a LoopProtocol, got {type(protocol).__name__}")
     nb = stage.n
     if controller.n != nb:
         raise ValueError(f"controller: expected {nb} members (as the stage), got {controller.n}")
@@ -181,12 +183,14 @@ def run_closed_loop_batch(stage, controller: BatchController, ref_um, *, settle:
         raise ValueError(f"ref_um: expected shape (N, 3) or ({nb}, N, 3), got {ref.shape}")
     y = stage.read().reading_V
     fast = compiled and batch_kernel.supported(stage) and controller.n_out == 3
-    if settle:
-        if controller.two_dof:
-            controller.reset_at(y)
-        n = int(settle_s * FS)
+    if y.any():                             # LoopProtocol rule 1, every member (start_controller)
+        controller.reset_at(y)
+    else:
+        controller.reset()
+    if protocol.n_before_record:
+        n = protocol.n_before_record
         start = y * UM_PER_V
-        w = raised_cosine(n, 0.6)
+        w = protocol.weights()
         if fast:
             r = start[None] + w[:, None, None] * (ref[:, 0] - start)[None]    # the loop's r, row by row
             y, _ = batch_kernel.twin_closed_loop(stage, controller.kernel_arrays(),

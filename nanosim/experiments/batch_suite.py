@@ -25,7 +25,7 @@ import numpy as np
 
 from nanosim.experiments import registry
 from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
-from nanosim.experiments.loop import SETTLE_S
+from nanosim.experiments.loop import LOOP_PROTOCOL, LoopProtocol
 from nanosim.experiments.registry import ExperimentContext
 from nanosim import constants as C
 from nanosim.plant.batch import BatchMujocoStage, BatchTwinStage
@@ -169,12 +169,11 @@ class _StageMember:
     def run(self, u_V):
         return self._request("run", np.asarray(u_V, dtype=float))
 
-    def closed_loop(self, controller, ref_um, *, settle: bool = True, settle_s: float = SETTLE_S):
-        """Batch hook of :func:`~nanosim.experiments.loop.run_closed_loop`."""
+    def closed_loop(self, controller, ref_um, *, protocol: LoopProtocol = LOOP_PROTOCOL):
+        """Batch hook of :func:`~nanosim.experiments.loop.run_closed_loop` (the same :class:`LoopProtocol`)."""
         if not isinstance(controller, _ControllerMember):
             raise ValueError("controller: a batch member's loop needs its batch controller (ctx.controller)")
-        return self._request("closed_loop", controller, np.asarray(ref_um, dtype=float), bool(settle),
-                             float(settle_s))
+        return self._request("closed_loop", controller, np.asarray(ref_um, dtype=float), protocol)
 
 
 class _Suite:
@@ -235,14 +234,14 @@ class _Suite:
             for r in reqs:
                 r.result = traces[r.member]
         elif op == "closed_loop":
-            sig = {(r.args[1].shape, r.args[2], r.args[3], r.args[0].bank is self.bank) for r in reqs}
-            if len(sig) != 1 or not sig.pop()[3]:
-                raise BatchDivergence("closed loops of different lengths, settle options or controllers")
+            sig = {(r.args[1].shape, r.args[2], r.args[0].bank is self.bank) for r in reqs}
+            if len(sig) != 1 or not sig.pop()[2]:
+                raise BatchDivergence("closed loops of different lengths, protocols or controllers")
             ref = np.empty((self.n,) + reqs[0].args[1].shape)
             ref[:] = reqs[0].args[1]
             for r in reqs:
                 ref[r.member] = r.args[1]
-            traces = run_closed_loop_batch(stage, self.bank, ref, settle=reqs[0].args[2], settle_s=reqs[0].args[3])
+            traces = run_closed_loop_batch(stage, self.bank, ref, protocol=reqs[0].args[2])
             for r in reqs:
                 r.result = traces[r.member]
         else:   # pragma: no cover

@@ -53,7 +53,6 @@ def contouring(factory: StageFactory, controller, seed=0,
     cases = []
     for v in speeds_um_s:
         ref = contour_reference(v)
-        controller.reset()
         cl = run_closed_loop(factory(stream_seed(seed, "contouring")), controller, ref)
         x, y = cl.y_um[:, 0], cl.y_um[:, 1]
         moving = (ref[:, 0] > 0.5) & (ref[:, 0] < 19.5)

@@ -6,13 +6,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from nanosim.artifact_names import FIG15_CREEP
-from nanosim.experiments.loop import FS, StageFactory, run_closed_loop
+from nanosim.experiments.loop import FS, LoopProtocol, StageFactory, run_closed_loop
 from nanosim.experiments.registry import Experiment, register
 from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_creep
 from nanosim.ramps import raised_cosine
 
-__all__ = ["CreepResult", "creep"]
+__all__ = ["CreepResult", "creep", "MOVE_S"]
+
+MOVE_S = 0.1            # the move from home to the origin before the hold [s]
 
 
 @dataclass(frozen=True)
@@ -33,8 +35,13 @@ def _drift_nm(y, n_after):
 
 
 def creep(factory: StageFactory, controller, G0_um_per_V, seed=0, hold_s=10.0) -> CreepResult:
-    """Move to the origin and hold: open loop through inv(G0), and closed loop."""
-    n_move, n_hold = int(0.1 * FS), int(hold_s * FS)
+    """Move to the origin and hold: open loop through inv(G0), and closed loop.
+
+    Both moves take :data:`MOVE_S` along a raised cosine from home; the closed loop's
+    :class:`~nanosim.experiments.loop.LoopProtocol` is that approach with no hold, so the
+    two records start at the same time after the same move.
+    """
+    n_move, n_hold = int(round(MOVE_S * FS)), int(hold_s * FS)
     st = factory(stream_seed(seed, "creep", 0))
     home = st.sensors.step(st.table_um).reading_um if hasattr(st, "sensors") else np.zeros(3)
     v0 = np.linalg.solve(G0_um_per_V, -home)
@@ -42,7 +49,8 @@ def creep(factory: StageFactory, controller, G0_um_per_V, seed=0, hold_s=10.0) -
     u = np.vstack([w[:, None] * v0, np.tile(v0, (n_hold, 1))])
     tr = st.run(u)
     y_open = tr.sensor_um[n_move:]
-    cl = run_closed_loop(factory(stream_seed(seed, "creep", 1)), controller, np.zeros((n_hold, 3)), settle_s=0.1)
+    cl = run_closed_loop(factory(stream_seed(seed, "creep", 1)), controller, np.zeros((n_hold, 3)),
+                         protocol=LoopProtocol(approach_s=MOVE_S, hold_s=0.0))
     n_after = int(0.5 * FS)
     return CreepResult(t_s=np.arange(n_hold) / FS, open_y_um=y_open, closed_y_um=cl.y_um,
                        open_drift_nm=_drift_nm(y_open, n_after), closed_drift_nm=_drift_nm(cl.y_um, n_after),

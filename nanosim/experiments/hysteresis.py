@@ -67,7 +67,6 @@ def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel
     out_pct, in_pct = loop_hysteresis_percent(u[:, 0], np.sign(travel[0]) * y[:, 0])
     ref = np.zeros((n, 3))
     ref[:, 0] = travel_um * tri
-    controller.reset()
     cl = run_closed_loop(factory(stream_seed(seed, "hysteresis", 1)), controller, ref)
     lag_nm = _branch_gap(ref[:, 0], cl.y_um[:, 0]) * 1e3
     lv = np.linspace(0, travel_um, levels)
@@ -75,7 +74,6 @@ def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel
     nd = int(dwell_s * FS)
     sref = np.zeros((len(seq) * nd, 3))
     sref[:, 0] = np.repeat(seq, nd)
-    controller.reset()
     st = run_closed_loop(factory(stream_seed(seed, "hysteresis", 2)), controller, sref)
     settled, _ = plateaus(st.y_um[:, 0], nd, len(seq))
     up, down = settled[:levels], settled[levels - 1:][::-1]

@@ -2,11 +2,14 @@
 
 The loop is ``e_k = r_k - y_k`` (sensor volts), ``u_k = K e_k (+ Ky y_k)``
 (controller volts), ``y_{k+1} = stage.step(u_k)``. References are in um from
-the probe origin; closed-loop runs first ramp from the home reading to the
-origin and settle.
+the probe origin. Every closed-loop record starts from the state that
+:class:`LoopProtocol` states: the controller started at the stage's reading at
+rest, the approach from that reading to the record's first reference, and a
+hold there.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -14,15 +17,112 @@ import numpy as np
 
 from nanosim import constants as C
 from nanosim.design.controller import DiscreteController
-from nanosim.ramps import raised_cosine
 
 __all__ = ["FS", "UM_PER_V", "LoopTrace", "run_closed_loop", "StageFactory", "plateaus", "step_metrics",
-           "INTERPOLATION_S", "interpolate", "SETTLE_S"]
+           "INTERPOLATION_S", "interpolate", "LoopProtocol", "LOOP_PROTOCOL", "start_controller"]
 
 FS = C.CONTROL_RATE_HZ
 UM_PER_V = C.SENSOR_UM_PER_V
-# Duration of the move from home to the first reference point before a closed-loop record [s].
-SETTLE_S = 0.6
+
+
+def _samples(name: str, seconds) -> int:
+    try:
+        x = float(seconds)
+    except (TypeError, ValueError):
+        x = float("nan")
+    if isinstance(seconds, bool) or not math.isfinite(x) or x < 0:
+        raise ValueError(f"{name}: expected a finite duration >= 0 s, got {seconds!r}")
+    return int(round(x * FS))
+
+
+@dataclass(frozen=True)
+class LoopProtocol:
+    """The stated start of every closed-loop record (single stage and batch alike).
+
+    1. **Controller start.** At the first sample the stage is at rest at its
+       reading ``y0`` (home, zero command) and the controller is started there
+       by :func:`start_controller`: ``controller.reset_at(y0)``, the bumpless
+       state for zero error and zero command
+       (:func:`~nanosim.design.controller.bumpless_state`). That is one rule for
+       every controller: the zero state for a one-degree-of-freedom controller,
+       the equilibrium at the reading (corrected along the integrators to a zero
+       first command) for a two-degree-of-freedom one. No state is carried over
+       from an earlier run of the same controller object.
+    2. **Approach.** The reference moves from the home reading to the record's
+       first reference ``ref[0]`` along a raised cosine
+       ``r_k = y0 + (ref[0] - y0) (1 - cos(pi k / n_a)) / 2`` over
+       ``approach_s`` (``n_a`` samples), a monotone move without jerk at its ends.
+    3. **Hold.** The reference stays at ``ref[0]`` for ``hold_s``: the
+       piezo's creep and the loop's transient after the approach decay for a
+       stated time before the record.
+    4. **Record.** ``ref`` from its first sample; the returned trace holds only
+       this part.
+
+    Parameters
+    ----------
+    approach_s : float
+        Duration of the approach [s] (0: the record starts at home).
+    hold_s : float
+        Hold at the first reference before the record [s].
+    """
+
+    approach_s: float = 0.36
+    hold_s: float = 0.24
+
+    def __post_init__(self):
+        for name in ("approach_s", "hold_s"):
+            _samples(name, getattr(self, name))
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+    @property
+    def n_approach(self) -> int:
+        """Samples of the approach."""
+        return _samples("approach_s", self.approach_s)
+
+    @property
+    def n_hold(self) -> int:
+        """Samples of the hold."""
+        return _samples("hold_s", self.hold_s)
+
+    @property
+    def n_before_record(self) -> int:
+        """Samples run before the record (approach and hold)."""
+        return self.n_approach + self.n_hold
+
+    def weights(self) -> np.ndarray:
+        """``(n_before_record,)`` fraction of the way from the home reading to ``ref[0]`` at each sample."""
+        n = self.n_approach
+        w = 0.5 * (1 - np.cos(np.pi * np.arange(n) / n)) if n else np.zeros(0)
+        return np.concatenate([w, np.ones(self.n_hold)])
+
+    def with_hold(self, hold_s: float) -> "LoopProtocol":
+        """The same protocol with another hold [s]."""
+        return LoopProtocol(approach_s=self.approach_s, hold_s=hold_s)
+
+    def describe(self) -> dict:
+        """The protocol as JSON types (for ``metrics.json`` and the report)."""
+        return {"controller_start": "reset_at(home reading): bumpless state for zero error and zero command "
+                                    "(zero state for a one-degree-of-freedom controller)",
+                "approach": "raised cosine from the home reading to the first reference",
+                "approach_s": self.approach_s, "hold_s": self.hold_s}
+
+
+# The protocol of every closed-loop experiment unless it states another one.
+LOOP_PROTOCOL = LoopProtocol()
+
+
+def start_controller(controller, measurement_V) -> None:
+    """Rule 1 of :class:`LoopProtocol`: ``controller.reset_at(measurement_V)`` (zero command).
+
+    At a zero reading the bumpless state for zero command is the zero state, ``controller.reset()``
+    (also for a controller whose equilibrium at a reading is not defined, an exact integrator on
+    its measurement path).
+    """
+    y = np.asarray(measurement_V, dtype=float)
+    if y.any():
+        controller.reset_at(y)
+    else:
+        controller.reset()
 
 
 @dataclass(frozen=True)
@@ -42,24 +142,26 @@ class LoopTrace:
         return self.ref_um - self.y_um
 
 
-def run_closed_loop(stage, controller: DiscreteController, ref_um: np.ndarray, *, settle: bool = True,
-                    settle_s: float = SETTLE_S) -> LoopTrace:
-    """Run the loop on ``ref_um`` (N, 3); with ``settle`` first move to ref_um[0] from home.
+def run_closed_loop(stage, controller: DiscreteController, ref_um: np.ndarray, *,
+                    protocol: LoopProtocol = LOOP_PROTOCOL) -> LoopTrace:
+    """Run the loop on ``ref_um`` (N, 3) from the state ``protocol`` states (:class:`LoopProtocol`).
 
-    A stage that runs closed loops itself (a member of a batch,
+    The controller is started at the stage's first reading (whatever state it
+    holds from an earlier run), then the approach and the hold run, then the
+    record. A stage that runs closed loops itself (a member of a batch,
     :mod:`nanosim.experiments.batch_suite`) is handed the whole call.
     """
+    if not isinstance(protocol, LoopProtocol):
+        raise ValueError(f"protocol: expected a LoopProtocol, got {type(protocol).__name__}")
     batched = getattr(stage, "closed_loop", None)
     if batched is not None:
-        return batched(controller, ref_um, settle=settle, settle_s=settle_s)
+        return batched(controller, ref_um, protocol=protocol)
     ref_um = np.asarray(ref_um, float)
     y = stage.sensors.step(stage.table_um).reading_V if hasattr(stage, "sensors") else np.zeros(3)
-    if settle:
-        if controller.two_dof:      # zero error at the home reading, zero command: no kick (reset_at)
-            controller.reset_at(y)
-        n = int(settle_s * FS)
+    start_controller(controller, y)
+    if protocol.n_before_record:
         start = y * UM_PER_V
-        w = raised_cosine(n, 0.6)
+        w = protocol.weights()
         pre = start + w[:, None] * (ref_um[0] - start)
         for r in pre:
             y = stage.step(controller.feedback(r / UM_PER_V, y))

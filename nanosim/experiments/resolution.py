@@ -2,11 +2,24 @@
 
 Closed-loop sigma is reported twice: from the sensor reading (what the paper
 measured, which includes the gauge's own noise and the ADC's quantization),
-and from the true table position (the motion itself). The noise budget runs
-the closed loop again with one noise source at a time (every other source
-off, the piezo and the loop unchanged) and reports each source's sigma and
-its share of the sum of variances; for a linear loop the shares add up to the
-total (the ``budget_sum_over_total`` ratio checks it).
+and from the true table position (the motion itself). The open-loop record
+starts :data:`OPEN_REST_S` after the stage was made (at home, zero command);
+the closed-loop record follows :data:`RESOLUTION_PROTOCOL`: the common approach
+and a hold of :data:`STEADY_HOLD_S`, a steady state. The approach excites the
+first mode pair, which a design that inverts the plant leaves at open-loop
+damping (the paper: damping factors below 0.01; at zeta = 0.004 and 176 Hz the
+time constant 1 / (zeta omega) is 0.23 s); 2 s is about nine of them, so the
+record holds noise, not the approach's ring.
+
+The noise budget runs both records again with one noise source at a time
+(every other source off, the piezo and the loop unchanged; :func:`noise_sources`):
+the broadband input-side sources (DAC electronics, DAC quantization,
+amplifier), the floor, the sensor-side sources (gauge, ADC quantization), and
+the low-frequency drift (the legs' thermal expansion). It reports each
+source's sigma, its share of the sum of variances, open and closed loop, and
+each source's PSD. For a linear chain the variances add up to the total (the
+``budget_sum_over_total`` ratios check it); the quantizers, alone, are not
+dithered and need not add.
 """
 from __future__ import annotations
 
@@ -16,13 +29,20 @@ import numpy as np
 from scipy import signal
 
 from nanosim.artifact_names import FIG16_RESOLUTION
-from nanosim.experiments.loop import FS, StageFactory, run_closed_loop
+from nanosim.experiments.loop import FS, LOOP_PROTOCOL, StageFactory, run_closed_loop
 from nanosim.experiments.registry import Experiment, register
 from nanosim.plant.floor import FloorConfig
 from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_resolution
 
-__all__ = ["ResolutionResult", "resolution", "noise_sources", "noise_budget"]
+__all__ = ["ResolutionResult", "resolution", "noise_sources", "noise_budget", "OPEN_REST_S", "RECORD_S",
+           "STEADY_HOLD_S", "RESOLUTION_PROTOCOL"]
+
+OPEN_REST_S = 0.3           # at rest from home before the open-loop record [s]
+RECORD_S = 4.0              # the records at rest [s]
+STEADY_HOLD_S = 2.0         # hold at the origin before the closed-loop records [s]
+RESOLUTION_PROTOCOL = LOOP_PROTOCOL.with_hold(STEADY_HOLD_S)
+_NPERSEG = 2048             # Welch segments (0.5 s, 2 Hz resolution)
 
 
 @dataclass(frozen=True)
@@ -30,8 +50,9 @@ class ResolutionResult:
     """Readings at rest (nm), their sigma and 95.45 / 99.73 % bands, Welch PSDs (nm^2/Hz) and the noise budget.
 
     ``sigma_nm`` is from the sensor reading, ``sigma_table_nm`` from the true
-    table position; ``budget`` maps each source to its closed-loop sigma
-    (sensor and table) and share.
+    table position; ``budget`` maps each source to its sigma (open loop, closed
+    loop sensor and table) and shares; ``budget_psd`` maps each source to its
+    open- and closed-loop reading PSDs (nm^2/Hz on ``psd_freq_hz``).
     """
 
     open_y_nm: np.ndarray
@@ -44,6 +65,7 @@ class ResolutionResult:
     psd_closed: np.ndarray
     sigma_table_nm: dict = field(default_factory=dict)
     budget: dict = field(default_factory=dict)
+    budget_psd: dict = field(default_factory=dict)
 
 
 def _bands(x_nm):
@@ -52,83 +74,120 @@ def _bands(x_nm):
 
 
 def noise_sources(config) -> dict:
-    """``{source: StageConfig}`` with only that noise source on (quantizers count as one source).
+    """``{source: StageConfig}`` with only that noise source on.
 
-    Sources that are off in ``config`` are left out.
+    Sources, in the order of the chain: ``DAC electronics`` (white and flicker),
+    ``DAC quantization``, ``amplifier``, ``thermal drift``, ``floor vibration``,
+    ``gauge``, ``ADC quantization``. Sources that are off in ``config`` are left out.
     """
     e = config.electronics
     silent_e = replace(e, dac_noise=False, amplifier_noise=False, sensor_noise=False, dac_quantization=False,
-                       adc_quantization=False)
+                       adc_quantization=False, thermal_drift=False)
     silent = replace(config, electronics=silent_e, floor=FloorConfig.off())
     out = {}
     if e.dac_noise and e.dac_noise_V > 0:
-        out["DAC"] = replace(silent, electronics=replace(silent_e, dac_noise=True))
+        out["DAC electronics"] = replace(silent, electronics=replace(silent_e, dac_noise=True))
+    if e.dac_quantization:
+        out["DAC quantization"] = replace(silent, electronics=replace(silent_e, dac_quantization=True))
     if e.amplifier_noise and e.amplifier_noise_V > 0:
         out["amplifier"] = replace(silent, electronics=replace(silent_e, amplifier_noise=True))
-    if e.sensor_noise:
-        out["gauge"] = replace(silent, electronics=replace(silent_e, sensor_noise=True))
+    if e.thermal_drift and e.thermal_drift_K > 0:
+        out["thermal drift"] = replace(silent, electronics=replace(silent_e, thermal_drift=True))
     if config.floor.enabled and config.floor.accel_psd_m2_s4_Hz > 0:
         out["floor vibration"] = replace(silent, floor=config.floor)
-    if e.dac_quantization or e.adc_quantization:
-        out["DAC and ADC quantization"] = replace(silent, electronics=replace(
-            silent_e, dac_quantization=e.dac_quantization, adc_quantization=e.adc_quantization))
+    if e.sensor_noise:
+        out["gauge"] = replace(silent, electronics=replace(silent_e, sensor_noise=True))
+    if e.adc_quantization:
+        out["ADC quantization"] = replace(silent, electronics=replace(silent_e, adc_quantization=True))
     return out
 
 
-def noise_budget(stage, controller, seed=0, duration_s=2.0, axis=0) -> dict:
-    """Closed-loop sigma (sensor and table, nm) with one noise source at a time, and the shares.
+def _open_record(stage, n: int):
+    """The open-loop record: ``OPEN_REST_S`` at rest from home, then ``n`` samples at zero command."""
+    stage.run(np.zeros((int(round(OPEN_REST_S * FS)), 3)))
+    return stage.run(np.zeros((n, 3)))
+
+
+def _psd(x_nm):
+    return signal.welch(x_nm - x_nm.mean(), fs=FS, nperseg=min(_NPERSEG, len(x_nm)))
+
+
+def _shares(rows: dict, key: str) -> None:
+    tot = sum(r[key] ** 2 for r in rows.values())
+    for r in rows.values():
+        r[key.replace("_nm", "_share")] = float(r[key] ** 2 / tot) if tot > 0 else 0.0
+
+
+def noise_budget(stage, controller, seed=0, duration_s=RECORD_S, axis=0, open_loop=True, spectra=None,
+                 open_seed=None) -> dict:
+    """Sigma (nm) with one noise source at a time, open loop and closed loop, and each source's share.
 
     ``stage`` must offer ``variant(config, seed)`` (:class:`~nanosim.plant.stage.Stage`,
-    :class:`~nanosim.plant.twin.TwinStage`).
+    :class:`~nanosim.plant.twin.TwinStage`). Per source: ``open_loop_nm`` (the reading,
+    open-loop record) and, closed loop, ``sensor_nm`` (the reading) and ``table_nm``
+    (the true position), each with its ``*_share`` of the sum of variances. A dict passed as
+    ``spectra`` receives ``{source: (freq_hz, psd_open, psd_closed)}`` (nm^2/Hz; ``psd_open``
+    None without ``open_loop``). The open-loop records use ``open_seed`` (default ``seed``): with the
+    seed of a measured total each source draws the very noise it adds there.
     """
     n = int(duration_s * FS)
     rows = {}
     for name, cfg in noise_sources(stage.config).items():
-        controller.reset()
-        cl = run_closed_loop(stage.variant(cfg, seed), controller, np.zeros((n, 3)))
-        rows[name] = {"sensor_nm": float(cl.y_um[:, axis].std() * 1e3),
-                      "table_nm": float(cl.table_um[:, axis].std() * 1e3)}
-    for key in ("sensor", "table"):
-        tot = sum(r[f"{key}_nm"] ** 2 for r in rows.values())
-        for r in rows.values():
-            r[f"{key}_share"] = float(r[f"{key}_nm"] ** 2 / tot) if tot > 0 else 0.0
+        row, po = {}, None
+        if open_loop:
+            st = stage.variant(cfg, seed if open_seed is None else open_seed)
+            y_open = _open_record(st, n).sensor_um[:, axis] * 1e3
+            row["open_loop_nm"] = float(y_open.std())
+            _, po = _psd(y_open)
+        cl = run_closed_loop(stage.variant(cfg, seed), controller, np.zeros((n, 3)), protocol=RESOLUTION_PROTOCOL)
+        y_closed = cl.y_um[:, axis] * 1e3
+        row.update(sensor_nm=float(y_closed.std()), table_nm=float(cl.table_um[:, axis].std() * 1e3))
+        rows[name] = row
+        if spectra is not None:
+            f, pc = _psd(y_closed)
+            spectra[name] = (f, po, pc)
+    for key in ("open_loop_nm", "sensor_nm", "table_nm") if open_loop else ("sensor_nm", "table_nm"):
+        _shares(rows, key)
     return rows
 
 
-def resolution(factory: StageFactory, controller, seed=0, duration_s=4.0, axis=0, budget=True) -> ResolutionResult:
+def resolution(factory: StageFactory, controller, seed=0, duration_s=RECORD_S, axis=0,
+               budget=True) -> ResolutionResult:
     """Sensor reading and table position at rest on ``axis``, open and closed loop, ``duration_s`` seconds.
 
     With ``budget`` (and a stage that has ``variant``) also the noise budget
-    (2 s closed-loop records, one source at a time).
+    (:func:`noise_budget`, records of the same length, one source at a time).
     """
     n = int(duration_s * FS)
-    st = factory(stream_seed(seed, "resolution", 0))
-    st.run(np.zeros((int(0.3 * FS), 3)))
-    tr = st.run(np.zeros((n, 3)))
+    tr = _open_record(factory(stream_seed(seed, "resolution", 0)), n)
     y_open = tr.sensor_um[:, axis] * 1e3
-    controller.reset()
     stc = factory(stream_seed(seed, "resolution", 1))
-    cl = run_closed_loop(stc, controller, np.zeros((n, 3)))
+    cl = run_closed_loop(stc, controller, np.zeros((n, 3)), protocol=RESOLUTION_PROTOCOL)
     y_closed = cl.y_um[:, axis] * 1e3
     so, so2, so3 = _bands(y_open)
     sc, sc2, sc3 = _bands(y_closed)
-    f, po = signal.welch(y_open - y_open.mean(), fs=FS, nperseg=2048)
-    _, pc = signal.welch(y_closed - y_closed.mean(), fs=FS, nperseg=2048)
+    f, po = _psd(y_open)
+    _, pc = _psd(y_closed)
     table = {"open_loop": float(tr.table_um[:, axis].std() * 1e3),
              "closed_loop": float(cl.table_um[:, axis].std() * 1e3)}
-    bud = {}
+    bud, spectra = {}, {}
     if budget and hasattr(stc, "variant"):
-        bud = noise_budget(stc, controller, seed=stream_seed(seed, "resolution", 1), axis=axis)
-        tot = {k: sum(r[f"{k}_nm"] ** 2 for r in bud.values()) for k in ("sensor", "table")}
-        bud = {"sources": bud, "record_s": 2.0,
-               "budget_sum_over_total": {"sensor": float(np.sqrt(tot["sensor"]) / sc) if sc else 0.0,
-                                         "table": float(np.sqrt(tot["table"]) / table["closed_loop"])
-                                         if table["closed_loop"] else 0.0}}
+        rows = noise_budget(stc, controller, seed=stream_seed(seed, "resolution", 1), duration_s=duration_s,
+                            axis=axis, spectra=spectra, open_seed=stream_seed(seed, "resolution", 0))
+        tot = {k: float(np.sqrt(sum(r[k] ** 2 for r in rows.values())))
+               for k in ("open_loop_nm", "sensor_nm", "table_nm")}
+        ref = {"open_loop_nm": so, "sensor_nm": sc, "table_nm": table["closed_loop"]}
+        bud = {"sources": rows, "record_s": float(duration_s), "axis": "XYZ"[axis],
+               "open_loop_rest_s": OPEN_REST_S, "closed_loop_protocol": RESOLUTION_PROTOCOL.describe(),
+               "budget_sum_over_total": {"open_loop": tot["open_loop_nm"] / so if so else 0.0,
+                                         "sensor": tot["sensor_nm"] / sc if sc else 0.0,
+                                         "table": tot["table_nm"] / ref["table_nm"] if ref["table_nm"] else 0.0}}
     return ResolutionResult(open_y_nm=y_open, closed_y_nm=y_closed,
                             sigma_nm={"open_loop": so, "closed_loop": sc},
                             band2_nm={"open_loop": so2, "closed_loop": sc2},
                             band3_nm={"open_loop": so3, "closed_loop": sc3},
-                            psd_freq_hz=f, psd_open=po, psd_closed=pc, sigma_table_nm=table, budget=bud)
+                            psd_freq_hz=f, psd_open=po, psd_closed=pc, sigma_table_nm=table, budget=bud,
+                            budget_psd=spectra)
 
 
 def _metrics(r: ResolutionResult) -> dict:

@@ -50,7 +50,6 @@ def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40)
             t = np.arange(n) / FS
             ref = np.zeros((n, 3))
             ref[:, axis] = _wave(kind, f, t, amplitude_um)
-            controller.reset()
             cl = run_closed_loop(factory(stream_seed(seed, "tracking")), controller, interpolate(ref))
             keep = slice(int(1 / f * FS), n)
             e = cl.error_um[keep, axis] * 1e3

@@ -34,7 +34,7 @@ from nanosim import experiments
 from nanosim.design.architectures.protocol import ControllerSpec, load_controller
 from nanosim.design.lti import crossing_hz
 from nanosim.experiments.bandwidth import PRBS_AMPLITUDE_UM, PRBS_DURATION_S
-from nanosim.experiments.loop import FS, SETTLE_S, UM_PER_V, run_closed_loop
+from nanosim.experiments.loop import FS, LOOP_PROTOCOL, UM_PER_V, LoopProtocol, run_closed_loop
 from nanosim.experiments.registry import ExperimentContext
 from nanosim.fileio import save_figure, write_json, write_npz
 from nanosim.pipeline import artifacts as A
@@ -92,7 +92,8 @@ class FeedbackSensitivity:
 
 
 def feedback_sensitivity(factory, controller, seed: int = 0, duration_s: float = PRBS_DURATION_S,
-                         amplitude_um: float = PRBS_AMPLITUDE_UM, settle_s: float = SETTLE_S) -> FeedbackSensitivity:
+                         amplitude_um: float = PRBS_AMPLITUDE_UM,
+                         protocol: LoopProtocol = LOOP_PROTOCOL) -> FeedbackSensitivity:
     """Output sensitivity ``S_o = (I + G Kfb)^-1`` of the loop as run, measured.
 
     With ``r = 0`` and a disturbance ``d`` added to the reading the controller sees
@@ -103,9 +104,9 @@ def feedback_sensitivity(factory, controller, seed: int = 0, duration_s: float =
     d_um = ident.prbs_channels(n, 800.0, fs=FS, n_channels=3, amplitude=amplitude_um,
                                seed=stream_seed(seed, "feedback_sensitivity.disturbance"))
     d_um = d_um - d_um.mean(axis=0)
-    n_settle = int(settle_s * FS)
-    stage = _ReadingOffset(factory(stream_seed(seed, "feedback_sensitivity")), d_um / UM_PER_V, start=n_settle - 1)
-    cl = run_closed_loop(stage, controller, np.zeros((n, 3)), settle_s=settle_s)
+    n_before = protocol.n_before_record
+    stage = _ReadingOffset(factory(stream_seed(seed, "feedback_sensitivity")), d_um / UM_PER_V, start=n_before - 1)
+    cl = run_closed_loop(stage, controller, np.zeros((n, 3)), protocol=protocol)
     est = ident.h1_estimate(d_um, cl.y_um, fs=FS, nperseg=2048)
     f = est.freq_hz
     band = (f >= 1.0) & (f <= 1000.0)

@@ -20,7 +20,8 @@ flicker), input-referred amplifier noise, saturation, gain, amplifier lag
 (:class:`~nanosim.plant.filters.SampledFilter`), gauge noise, clip, ADC. The
 filters are the single-stage classes on ``3 B`` channels.
 
-Noise: each member's DAC noise, amplifier noise and gauge noise are drawn by
+Noise: each member's DAC noise (white, flicker and the legs' thermal drift),
+amplifier noise and gauge noise are drawn by
 single-stage chains built from that member's seed with every other effect off
 (amplifier gain 1 for the amplifier noise), so their outputs are exactly the
 noise terms the single stage adds (same generators, same block draws, same
@@ -32,6 +33,8 @@ from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
+
+from scipy.signal import lfilter
 
 from nanosim.plant import batch_kernel
 from nanosim.plant.electronics import ActuatorChain, ElectronicsConfig, SensorChain
@@ -123,6 +126,9 @@ class _StackedNoise(_NoiseTerms):
                 self._fl_bz = np.array([bz for bz, _ in fl._sec])
                 self._fl_ap = np.array([ap for _, ap in fl._sec])
                 self._fl_z = np.zeros((len(fl._sec), 3 * len(self._seeds)))
+            if ch0._drift_noise is not None:            # each chain's stationary start, members side by side
+                self._drift_z = np.concatenate([ch._drift_z for ch in self._chains])
+                self._drift_z2 = np.concatenate([ch._drift_z2 for ch in self._chains])
 
     def _gather(self, stream: str, k: int) -> np.ndarray:
         """``(k, 3 B)``: ``k`` rows of every member's ``stream``, members side by side (``np.concatenate``'s)."""
@@ -150,13 +156,23 @@ class _StackedNoise(_NoiseTerms):
                     total = f
                 else:
                     np.add(total, f, out=total)
+            if ch0._drift_noise is not None:            # ActuatorChain._noise_run's two sections, every channel
+                w = self._gather("_drift_noise", k)
+                x, zf = lfilter([ch0._drift_b0, 0.0], [1.0, -ch0._drift_a], w, axis=0, zi=self._drift_z[None])
+                t, zf2 = lfilter([ch0._drift_c0, 0.0], [1.0, -ch0._drift_b], x, axis=0, zi=self._drift_z2[None])
+                self._drift_z, self._drift_z2 = zf[0], zf2[0]
+                d = np.multiply(ch0._drift_scale, t, out=t)
+                if total is None:
+                    total = d
+                else:
+                    np.add(total, d, out=total)
         np.add(0.0, total, out=total)
         self._buf = total
         self._i = 0
 
 
 def _noise_terms(make_chain, extract, kind: str, seeds) -> _NoiseTerms:
-    """Stacked noise when numba is there and the chain has no AR-shaped white noise (StageConfig.v1), else per chain."""
+    """Stacked noise when numba is there and the chain has no AR-shaped white noise, else per chain."""
     if batch_kernel.AVAILABLE:
         ch = make_chain(0)
         if getattr(ch, "_ar", 0.0) == 0.0:
@@ -269,7 +285,8 @@ class BatchElectronics:
         sigma = e.dac_noise_V if e.dac_noise else 0.0
         flick = e.dac_flicker_V_per_rtHz
         sigma_amp = e.amplifier_noise_V if e.amplifier_noise else 0.0
-        margin = 20.0 * (sigma + sigma_amp + 3.5 * flick)
+        drift = e.thermal_drift_V
+        margin = 20.0 * (sigma + sigma_amp + 3.5 * flick + drift)
         self._delay = DelayLine(e.computation_delay_samples, nch)
         self._lag = AmplifierLag(e.amplifier_bandwidth_Hz, e.dt_s, nch)
         self._dac_clip_implied = (self._quant and self._center + self._code_lo * self._lsb + margin < self._lo
@@ -308,17 +325,17 @@ class BatchElectronics:
         quiet = dict(dac_quantization=False, saturation=False, sensor_clip=False, adc_quantization=False,
                      computation_delay_samples=0, amplifier_bandwidth_Hz=None)
         self._dac_noise = self._amp_noise = self._gauge_noise = None
-        if sigma > 0.0 or flick > 0.0:          # u_dac = 0 + (white + flicker)
+        if sigma > 0.0 or flick > 0.0 or drift > 0.0:          # u_dac = 0 + (white + flicker + drift)
             dac_cfg = replace(e, sensor_noise=False, amplifier_noise=False, **quiet)
             self._dac_noise = _noise_terms(lambda s: ActuatorChain(dac_cfg, PiezoConfig.linear(), seed=s),
                                            lambda smp: smp.u_dac_V, "dac", self.seeds)
         if sigma_amp > 0.0:                     # v_piezo = 1 x (0 + amplifier noise)
-            amp_cfg = replace(e, sensor_noise=False, dac_noise=False,
+            amp_cfg = replace(e, sensor_noise=False, dac_noise=False, thermal_drift=False,
                               amplifier_gain=1.0, **quiet)
             self._amp_noise = _noise_terms(lambda s: ActuatorChain(amp_cfg, PiezoConfig.linear(), seed=s),
                                            lambda smp: smp.v_piezo_V, "amp", self.seeds)
         if e.sensor_noise and e.sensor_noise_std_nm > 0:
-            gauge_cfg = replace(e, dac_noise=False, **quiet)
+            gauge_cfg = replace(e, dac_noise=False, thermal_drift=False, **quiet)
             self._gauge_noise = _noise_terms(lambda s: SensorChain(gauge_cfg, seed=s), lambda smp: smp.reading_um,
                                              "gauge", self.seeds)
         self.reset()

@@ -3,7 +3,8 @@
 Actuator side (per channel, vectorised over the 3 actuators)::
 
     u (controller V) -> computation delay (whole samples)
-      -> DAC: 16-bit quantisation, + DAC noise (white + flicker) + amplifier noise (input-referred)
+      -> DAC: quantisation (18 bits over +/-10 V), + DAC noise (white + flicker) + thermal drift of
+         the leg + amplifier noise (input-referred)
       -> amplifier: clip to the command range [-1, 7.5] V (flag), x20, first-order small-signal
          bandwidth into the piezo capacitance -> v_piezo (V, mean over the sample period)
       -> piezo (nanosim.plant.piezo): PI hysteresis -> log creep -> v_free (V)
@@ -23,10 +24,23 @@ DAC noise). Noise spectra, each with a physical basis:
   one-sided PSD ``e_n**2 (1 + f_c / f)``: white ``dac_noise_V`` per sample
   (``e_n = dac_noise_V / sqrt(fs / 2)``) plus 1/f noise below
   ``dac_flicker_corner_Hz`` (realized by
-  :class:`~nanosim.plant.filters.FlickerShaper` from 0.01 Hz up). Its level is
-  the one noise level fitted to the paper: the open-loop probe sigma at rest,
-  11.4 nm, which the paper attributes to the DAC's electrical noise ("this
-  high frequency noise will vibrate the stage", Sec. 5).
+  :class:`~nanosim.plant.filters.FlickerShaper` from 0.01 Hz up), at the
+  datasheet level of the converter class (:data:`nanosim.constants.DAC_WHITE_NOISE_V`).
+- Thermal drift: the chamber air's temperature near each leg is a first-order
+  (Ornstein-Uhlenbeck) process of correlation time ``thermal_air_tau_s``,
+  sampled exactly as ``x_k = a x_{k-1} + sqrt(1 - a^2) w_k``,
+  ``a = exp(-dt / tau_air)``; the leg follows it through its heat diffusion, a
+  first-order lag ``T_k = b T_{k-1} + (1 - b) x_k``, ``b = exp(-dt / tau_leg)``
+  (``thermal_drift_tau_s``), scaled to the rms ``thermal_drift_K``
+  (``var T / var x = (1 - b)^2 (1 + a b) / ((1 - b^2)(1 - a b))``). The
+  spectrum is flat below both corners and falls as ``f^-4`` above them, so a
+  loop of tens of Hz removes it. Both states start from their joint stationary
+  distribution. The leg lengthens by ``d_alpha L T`` (differential expansion
+  of the aluminium frame against the actuator over its mounted length), which
+  acts like a free-strain change of the actuator: referred to controller volts
+  by the free stroke per volt, ``thermal_drift_V``. Its level is the one noise
+  level calibrated to the paper (the open-loop probe sigma at rest, 11.4 nm;
+  ``tools/fit_drift_level.py``).
 - Amplifier: white, referred to its input (``amplifier_noise_V`` per sample).
 - Gauge: white ``0.3 nm / sqrt(1 kHz) = 9.5 pm/sqrt(Hz)`` (paper: 0.3 nm at
   1 kHz). The noise leaves the gauge through its output filter and the ADC
@@ -43,7 +57,8 @@ Every effect is switchable; with everything off ``v_free_V == 20 * u`` and
 
 Random streams: each noise draws from its own ``numpy.random.Generator``,
 seeded from a child of ``numpy.random.SeedSequence(seed)`` (DAC white: child 0,
-gauge: child 1, DAC flicker: child 2, amplifier: child 3; the floor uses 4), so
+gauge: child 1, DAC flicker: child 2, amplifier: child 3; the floor uses 4;
+thermal drift: child 5), so
 giving both chains the same master seed yields independent streams. Normal
 deviates are drawn in fixed blocks, so ``run`` and repeated ``step`` calls
 produce bit-identical outputs, and ``reset`` replays the same noise.
@@ -77,6 +92,7 @@ _ACTUATOR_STREAM = 0
 _SENSOR_STREAM = 1
 _FLICKER_STREAM = 2
 _AMPLIFIER_STREAM = 3
+_DRIFT_STREAM = 5
 _FLICKER_F_MIN_HZ = 0.01          # lowest pole of the flicker shaper (records up to ~100 s)
 
 
@@ -94,12 +110,11 @@ class ElectronicsConfig:
     dac_quantization : bool
         Quantise the command to ``dac_bits`` over ``dac_center_V +/- dac_full_scale_V``.
     dac_bits : int
-        DAC resolution.
+        DAC resolution (:data:`nanosim.constants.DAC_BITS`).
     dac_full_scale_V : float
-        DAC output half-range (controller volts).
+        DAC output half-range (controller volts; +/-10 V).
     dac_center_V : float
-        Centre of the DAC output range (0 for a bipolar +/-10 V DAC; 3.25 V with
-        4.25 V half-range spans exactly the [-1, 7.5] V command range).
+        Centre of the DAC output range (0 for a bipolar +/-10 V DAC).
     dac_noise : bool
         Add white Gaussian noise to the DAC output.
     dac_noise_V : float
@@ -107,10 +122,18 @@ class ElectronicsConfig:
     dac_noise_corner_Hz : float or None
         ``None``: the white part is white. Otherwise it passes a two-pole
         low-pass ``b0 / (1 - a z^-1)^2``, ``a = exp(-2 pi fc / fs)``, scaled so
-        its rms is still ``dac_noise_V`` (the stage-v1 DAC noise: 1.39 mV, 5 Hz).
+        its rms is still ``dac_noise_V`` (a low-passed DAC noise, e.g. 1.39 mV through 5 Hz).
     dac_flicker_corner_Hz : float or None
         1/f corner of the DAC noise: below it the flicker part exceeds the
         white part (``None`` or 0: white only).
+    thermal_drift : bool
+        Add the legs' thermal drift (see the module docstring).
+    thermal_drift_K : float
+        rms temperature fluctuation of each leg, K.
+    thermal_drift_tau_s : float
+        The leg's thermal lag, s.
+    thermal_air_tau_s : float
+        The correlation time of the air temperature the leg follows, s.
     amplifier_noise : bool
         Add the amplifier's white noise (input-referred).
     amplifier_noise_V : float
@@ -152,13 +175,17 @@ class ElectronicsConfig:
     sample_rate_Hz: float = C.CONTROL_RATE_HZ
     computation_delay_samples: int = C.COMPUTATION_DELAY_SAMPLES
     dac_quantization: bool = True
-    dac_bits: int = 16
-    dac_full_scale_V: float = 10.0
-    dac_center_V: float = 0.0
+    dac_bits: int = C.DAC_BITS
+    dac_full_scale_V: float = C.DAC_FULL_SCALE_V
+    dac_center_V: float = C.DAC_CENTER_V
     dac_noise: bool = True
     dac_noise_V: float = C.DAC_WHITE_NOISE_V
     dac_noise_corner_Hz: float | None = None
     dac_flicker_corner_Hz: float | None = C.DAC_FLICKER_CORNER_HZ
+    thermal_drift: bool = True
+    thermal_drift_K: float = C.THERMAL_DRIFT_K_RMS
+    thermal_drift_tau_s: float = C.THERMAL_DRIFT_TAU_S
+    thermal_air_tau_s: float = C.THERMAL_AIR_TAU_S
     amplifier_noise: bool = True
     amplifier_noise_V: float = C.AMPLIFIER_NOISE_V
     amplifier_gain: float = C.AMPLIFIER_GAIN
@@ -185,7 +212,7 @@ class ElectronicsConfig:
             object.__setattr__(self, name, x)
 
         for name in ("sample_rate_Hz", "dac_full_scale_V", "amplifier_gain", "sensor_range_um",
-                     "sensor_um_per_V", "adc_full_scale_V"):
+                     "sensor_um_per_V", "adc_full_scale_V", "thermal_drift_tau_s", "thermal_air_tau_s"):
             positive(name)
         fc = self.dac_flicker_corner_Hz
         if fc is not None and (not np.isfinite(float(fc)) or float(fc) < 0):
@@ -199,7 +226,7 @@ class ElectronicsConfig:
         object.__setattr__(self, "computation_delay_samples", int(d))
         if self.gauge_filter_order not in (1, 2):
             raise ValueError(f"gauge_filter_order: expected 1 or 2, got {self.gauge_filter_order!r}")
-        for name in ("dac_noise_V", "sensor_noise_nm_rms_1kHz", "amplifier_noise_V"):
+        for name in ("dac_noise_V", "sensor_noise_nm_rms_1kHz", "amplifier_noise_V", "thermal_drift_K"):
             x = float(getattr(self, name))
             if not np.isfinite(x) or x < 0:
                 raise ValueError(f"{name}: expected a finite value >= 0, got {getattr(self, name)}")
@@ -219,7 +246,7 @@ class ElectronicsConfig:
     @classmethod
     def ideal(cls, **overrides) -> "ElectronicsConfig":
         """All effects off (exact gain-only chain); keyword overrides allowed."""
-        kw = dict(dac_quantization=False, dac_noise=False, saturation=False, amplifier_noise=False,
+        kw = dict(dac_quantization=False, dac_noise=False, thermal_drift=False, saturation=False, amplifier_noise=False,
                   sensor_noise=False, sensor_clip=False, adc_quantization=False, computation_delay_samples=0,
                   amplifier_bandwidth_Hz=None, gauge_bandwidth_Hz=None)
         kw.update(overrides)
@@ -238,8 +265,26 @@ class ElectronicsConfig:
         return self.dac_noise_V / math.sqrt(self.sample_rate_Hz / 2.0) * math.sqrt(self.dac_flicker_corner_Hz)
 
     @property
+    def thermal_drift_V(self) -> float:
+        """The rms of the thermal drift referred to the DAC output, controller volts (0 when off).
+
+        ``d_alpha L sigma_T / (x_free / V_max) / gain``: the leg's elongation over the actuator's
+        free stroke per piezo volt, over the amplifier gain.
+        """
+        if not self.thermal_drift:
+            return 0.0
+        um_per_piezo_V = C.PIEZO_FREE_STROKE_M / C.PIEZO_MAX_V
+        return (C.THERMAL_EXPANSION_DIFF_PER_K * C.THERMAL_LOOP_LENGTH_M * self.thermal_drift_K
+                / um_per_piezo_V / self.amplifier_gain)
+
+    @property
+    def dac_quantization_rms_V(self) -> float:
+        """The rms of the DAC's quantisation error when dithered, ``LSB / sqrt(12)`` (0 when off)."""
+        return self.dac_lsb_V / math.sqrt(12.0) if self.dac_quantization else 0.0
+
+    @property
     def dac_lsb_V(self) -> float:
-        """DAC step, controller volts (20 V / 2**16 = 0.305 mV by default)."""
+        """DAC step, controller volts (``2 dac_full_scale_V / 2**dac_bits``)."""
         return 2.0 * self.dac_full_scale_V / 2 ** self.dac_bits
 
     @property
@@ -375,6 +420,18 @@ class ActuatorChain:
         self._sigma_amp = e.amplifier_noise_V if e.amplifier_noise else 0.0
         self._amp_noise = (NormalStream(child_seed(seed, _AMPLIFIER_STREAM), self.n_channels)
                            if self._sigma_amp > 0 else None)
+        self._drift_V = e.thermal_drift_V
+        a = self._drift_a = math.exp(-self.dt_s / e.thermal_air_tau_s)
+        b = self._drift_b = math.exp(-self.dt_s / e.thermal_drift_tau_s)
+        self._drift_b0 = math.sqrt(1.0 - a * a)
+        self._drift_c0 = 1.0 - b
+        var_T = (1.0 - b) ** 2 * (1.0 + a * b) / ((1.0 - b * b) * (1.0 - a * b))     # var T / var x
+        self._drift_cov = (1.0 - b) / (1.0 - a * b)                                   # cov(x, T) / var x
+        self._drift_var = var_T
+        self._drift_scale = self._drift_V / math.sqrt(var_T)
+        self._drift_noise = (NormalStream(child_seed(seed, _DRIFT_STREAM), self.n_channels)
+                             if self._drift_V > 0 else None)
+        self._drift_start()
         self._delay = DelayLine(e.computation_delay_samples, self.n_channels)
         self._lag = AmplifierLag(e.amplifier_bandwidth_Hz, self.dt_s, self.n_channels)
         self._quant = e.dac_quantization
@@ -388,18 +445,33 @@ class ActuatorChain:
         # clipped DAC code always lands outside the command range (noise cannot
         # bring it back) and is flagged there: skip the separate DAC check.
         # flicker rms over 0.01 Hz ... fs/2 is sqrt(ln(2e5)) ~ 3.5 times its 1 Hz density
-        margin = 20.0 * (self._sigma + self._sigma_amp + 3.5 * flick)
+        margin = 20.0 * (self._sigma + self._sigma_amp + 3.5 * flick + self._drift_V)
         self._dac_clip_implied = (self._quant and self._center + self._code_lo * self._lsb + margin < self._lo
                                   and self._hi < self._center + self._code_hi * self._lsb - margin)
+
+    def _drift_start(self) -> None:
+        """The drift's filter states for a stationary start, from the stream's first two rows.
+
+        ``x_{-1} = w_1`` and ``T_{-1} = cov x_{-1} + sqrt(var_T - cov^2) w_2`` (the joint
+        stationary distribution of air and leg); the direct-form states are ``a x_{-1}``, ``b T_{-1}``.
+        """
+        if self._drift_noise is None:
+            self._drift_z = self._drift_z2 = np.zeros(self.n_channels)
+            return
+        x = self._drift_noise.take1().copy()
+        t = self._drift_cov * x + math.sqrt(self._drift_var - self._drift_cov ** 2) * self._drift_noise.take1()
+        self._drift_z, self._drift_z2 = self._drift_a * x, self._drift_b * t
 
     def reset(self) -> None:
         """Virgin piezo state, no creep history, empty delay line, noise streams rewound."""
         self.piezo.reset()
         self._noise.reset()
         self._ar_state = np.zeros((2, self.n_channels))
-        for part in (self._flicker, self._flicker_noise, self._amp_noise, self._delay, self._lag):
+        for part in (self._flicker, self._flicker_noise, self._amp_noise, self._delay, self._lag,
+                     self._drift_noise):
             if part is not None:
                 part.reset()
+        self._drift_start()
 
     def _noise_step(self) -> np.ndarray | None:
         """The additive DAC noise of one sample (controller V), or None."""
@@ -416,6 +488,14 @@ class ActuatorChain:
         if self._flicker is not None:
             f = self._flicker.step(self._flicker_noise.take1())
             total = f if total is None else total + f
+        if self._drift_noise is not None:
+            # two first-order sections in direct form II transposed, as scipy.signal.lfilter: step == run
+            x = self._drift_b0 * self._drift_noise.take1() + self._drift_z
+            self._drift_z = self._drift_a * x
+            t = self._drift_c0 * x + self._drift_z2
+            self._drift_z2 = self._drift_b * t
+            d = self._drift_scale * t
+            total = d if total is None else total + d
         return total
 
     def _noise_run(self, n: int) -> np.ndarray | None:
@@ -430,6 +510,13 @@ class ActuatorChain:
         if self._flicker is not None:
             f = self._flicker.run(self._flicker_noise.take(n))
             total = f if total is None else total + f
+        if self._drift_noise is not None and n:
+            x, zf = lfilter([self._drift_b0, 0.0], [1.0, -self._drift_a], self._drift_noise.take(n), axis=0,
+                            zi=self._drift_z[None])
+            t, zf2 = lfilter([self._drift_c0, 0.0], [1.0, -self._drift_b], x, axis=0, zi=self._drift_z2[None])
+            self._drift_z, self._drift_z2 = zf[0], zf2[0]
+            d = self._drift_scale * t
+            total = d if total is None else total + d
         return total
 
     def _electronics(self, u: np.ndarray, noise: np.ndarray | None, amp_noise: np.ndarray | None = None):

@@ -27,14 +27,14 @@ __all__ = ["StageConfig", "Trace", "Stage", "rollout_probes_um", "run_open_loop_
            "STAGE_ELECTRONICS_V1"]
 
 # The bench electronics: every default of ElectronicsConfig (sourced values in
-# nanosim.constants), with the 16-bit DAC spanning the command range [-1, 7.5] V
-# (LSB 0.13 mV). The DAC's white-noise level is the one noise level fitted to
-# the paper (open-loop probe sigma at rest 11.4 nm, Sec. 5): tools/fit_dac_noise.py.
-_DAC_SPAN = dict(dac_full_scale_V=(C.COMMAND_RANGE_V[1] - C.COMMAND_RANGE_V[0]) / 2,
-                 dac_center_V=(C.COMMAND_RANGE_V[1] + C.COMMAND_RANGE_V[0]) / 2)
-STAGE_ELECTRONICS = ElectronicsConfig(**_DAC_SPAN)
-# Stage v1 (the first stage model, kept for comparison): no computation delay, amplifier or gauge bandwidth,
-# no amplifier noise; DAC noise 1.39 mV low-passed by two poles at 5 Hz (a level and corner calibrated to
+# nanosim.constants: the DAC's resolution and range, every broadband noise at its
+# datasheet level). The legs' thermal-drift level is the one noise level calibrated
+# to the paper (open-loop probe sigma at rest 11.4 nm, Sec. 5): tools/fit_drift_level.py.
+STAGE_ELECTRONICS = ElectronicsConfig()
+_DAC_SPAN = dict(dac_bits=16, dac_full_scale_V=(C.COMMAND_RANGE_V[1] - C.COMMAND_RANGE_V[0]) / 2,
+                 dac_center_V=(C.COMMAND_RANGE_V[1] + C.COMMAND_RANGE_V[0]) / 2, thermal_drift=False)
+# Stage v1 (the first stage model, kept for comparison): no computation delay, amplifier or gauge bandwidth, no amplifier
+# noise; DAC noise 1.39 mV low-passed by two poles at 5 Hz (a level and corner calibrated to
 # the open- and closed-loop sigma). For comparisons and ablations.
 STAGE_ELECTRONICS_V1 = ElectronicsConfig(**_DAC_SPAN, computation_delay_samples=0, dac_noise_V=1.39e-3,
                                          dac_noise_corner_Hz=5.0, dac_flicker_corner_Hz=None,

@@ -50,9 +50,21 @@ def fig_creep(r):
     return fig
 
 
+def _cumulative_sigma_nm(f, psd):
+    """The square root of the PSD's integral from 0 to each frequency (trapezoids), nm."""
+    df = np.diff(f)
+    return np.sqrt(np.concatenate([[0.0], np.cumsum(0.5 * (psd[1:] + psd[:-1]) * df)]))
+
+
 def fig_resolution(r):
-    """Paper Fig. 16: readings at rest and their PSD, open and closed loop."""
-    fig, ax = subplots(2, 2, figsize=(11, 7))
+    """Paper Fig. 16: readings at rest and their PSD, open and closed loop; the noise budget per source.
+
+    With a noise budget a third row shows each source's PSD (nm^2/Hz, one source on at a
+    time) over the total's, and the total's cumulative sigma (right axis, nm).
+    """
+    spectra = getattr(r, "budget_psd", None) or {}
+    rows = 3 if spectra else 2
+    fig, ax = subplots(rows, 2, figsize=(11, 3.5 * rows))
     t = np.arange(len(r.open_y_nm)) / C.CONTROL_RATE_HZ
     for j, (y, lab) in enumerate(((r.open_y_nm, "open_loop"), (r.closed_y_nm, "closed_loop"))):
         ax[0, j].plot(t, y - y.mean(), lw=0.4)
@@ -70,6 +82,27 @@ def fig_resolution(r):
         ax[1, j].set_ylabel("PSD (nm^2/Hz)")
         ax[1, j].set_title(f"({'cd'[j]}) output PSD, no input")
         ax[1, j].grid(True, which="both", alpha=0.3)
+        if not spectra:
+            continue
+        a = ax[2, j]
+        rows_b = (r.budget or {}).get("sources", {})
+        key = "open_loop_nm" if j == 0 else "sensor_nm"
+        for name, (f, po, pc) in spectra.items():
+            p = po if j == 0 else pc
+            sig = rows_b.get(name, {}).get(key)
+            if p is None or not np.any(p[1:] > 0) or (sig is not None and sig < 1e-6):
+                continue                                  # a source that does not move this record
+            a.loglog(f[1:], p[1:], lw=0.8, label=f"{name}: {sig:.2f} nm" if sig is not None else name)
+        a.loglog(r.psd_freq_hz[1:], psd[1:], color="k", lw=1.0, label="all sources")
+        a.set_ylim(bottom=psd[1:].min() * 1e-3)
+        a.set_xlabel("frequency (Hz)")
+        a.set_ylabel("PSD (nm^2/Hz)")
+        a.set_title(f"({'ef'[j]}) {lab.replace('_', ' ')} per source (one on at a time)", fontsize=9)
+        a.grid(True, which="both", alpha=0.3)
+        a.legend(fontsize=6, loc="lower left")
+        c = a.twinx()
+        c.semilogx(r.psd_freq_hz[1:], _cumulative_sigma_nm(r.psd_freq_hz, psd)[1:], color="k", ls="--", lw=0.8)
+        c.set_ylabel("cumulative sigma, all sources (nm, dashed)")
     return fig
 
 
@@ -107,19 +140,31 @@ def fig_bandwidth(r, predicted=None):
         a.legend(fontsize=8)
     k0 = int(0.01 * C.CONTROL_RATE_HZ)
     t = (r.step.t_s - r.step.t_s[k0]) * 1e3
-    ax[2].plot(t, r.step.ref_um[:, 0], label="reference")
-    ax[2].plot(t, r.step.y_um[:, 0], label="X probe")
-    final = r.step.ref_um[-1, 0]
-    y0 = r.step.y_um[:k0, 0].mean() if k0 else 0.0
-    for lim in (y0 + 0.98 * (final - y0), y0 + 1.02 * (final - y0)):
-        ax[2].axhline(lim, color="0.5", ls=":", lw=0.8)
+    cases = getattr(r, "steps", ()) or ()
+    if cases:
+        for c in cases:
+            tc = (c.trace.t_s - c.trace.t_s[k0]) * 1e3
+            ax[2].plot(tc, c.sign * (c.trace.y_um[:, c.axis] - c.baseline_um) / abs(c.trace.ref_um[-1, c.axis]),
+                       lw=0.8, label=f"{c.name}: {c.settling_ms:.1f} ms, {c.overshoot_percent:.1f} %")
+        ax[2].plot(t, np.where(t >= 0, 1.0, 0.0), color="k", lw=0.8, ls="--", label="reference")
+        for lim in (0.98, 1.02):
+            ax[2].axhline(lim, color="0.5", ls=":", lw=0.8)
+        ax[2].set_ylabel("step response / step")
+    else:
+        ax[2].plot(t, r.step.ref_um[:, 0], label="reference")
+        ax[2].plot(t, r.step.y_um[:, 0], label="X probe")
+        final = r.step.ref_um[-1, 0]
+        y0 = r.step.y_um[:k0, 0].mean() if k0 else 0.0
+        for lim in (y0 + 0.98 * (final - y0), y0 + 1.02 * (final - y0)):
+            ax[2].axhline(lim, color="0.5", ls=":", lw=0.8)
+        ax[2].set_ylabel("X (um)")
+    slowest = max([c.settling_ms for c in cases] or [r.settling_ms])
     # the settling happens in the first tens of ms; the whole record is 300 ms
-    ax[2].set_xlim(-5.0, min(t[-1], max(40.0, 2 * r.settling_ms if np.isfinite(r.settling_ms) else t[-1])))
+    ax[2].set_xlim(-5.0, min(t[-1], max(40.0, 2 * slowest if np.isfinite(slowest) else t[-1])))
     ax[2].set_xlabel("time (ms); dotted: the 2 % settling band")
-    ax[2].set_ylabel("X (um)")
-    ax[2].set_title(f"(c) 2 um step: rise {r.rise_ms:.1f} ms, peak {r.peak_ms:.1f} ms, settle {r.settling_ms:.1f} ms, "
+    ax[2].set_title(f"(c) 2 um steps; +X after 1 s: rise {r.rise_ms:.1f} ms, settle {r.settling_ms:.1f} ms, "
                     f"overshoot {r.overshoot_percent:.1f} %", fontsize=9)
-    ax[2].legend()
+    ax[2].legend(fontsize=6)
     ax[2].grid(alpha=0.3)
     return fig
 

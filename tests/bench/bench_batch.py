@@ -22,7 +22,7 @@ import pytest
 
 from nanosim.design.controller import ControllerConfig, DiscreteController
 from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
-from nanosim.experiments.loop import run_closed_loop
+from nanosim.experiments.loop import LoopProtocol, run_closed_loop
 from nanosim.plant.batch import BatchMujocoStage, BatchTwinStage
 from nanosim.plant.linearize import linearize
 from nanosim.plant.mjcf import load_model
@@ -90,14 +90,14 @@ def _twin_worker(n_members, seed0, sim_s, barrier):
     ctrl = controller_29(modal_analysis(model).static_gain_um_per_V)
     # warm-up, not timed: the compiled loop's one-time load from numba's cache (about 0.3 s per process)
     warm = BatchTwinStage([tw], [seed0], home_um=home, exact=False)
-    run_closed_loop_batch(warm, BatchController(ctrl, n=1, exact=False), _reference(8), settle=False)
+    run_closed_loop_batch(warm, BatchController(ctrl, n=1, exact=False), _reference(8), protocol=LoopProtocol(0.0, 0.0))
     stage = BatchTwinStage([tw] * n_members, list(range(seed0, seed0 + n_members)), home_um=home, exact=False)
     bank = BatchController(ctrl, n=n_members, exact=False)
     ref = _reference(int(sim_s * 4000))
     if barrier is not None:
         barrier.wait()
     t0, c0 = time.perf_counter(), time.process_time()
-    run_closed_loop_batch(stage, bank, ref, settle=False)
+    run_closed_loop_batch(stage, bank, ref, protocol=LoopProtocol(0.0, 0.0))
     return time.perf_counter() - t0, time.process_time() - c0
 
 
@@ -116,7 +116,7 @@ def single_twin_rt(sim_s=0.5) -> float:
     st = TwinStage(tw, seed=0, home_um=Stage(model=model).table_um)
     ref = _reference(int(sim_s * 4000))
     t0 = time.perf_counter()
-    run_closed_loop(st, ctrl, ref, settle=False)
+    run_closed_loop(st, ctrl, ref, protocol=LoopProtocol(0.0, 0.0))
     return sim_s / (time.perf_counter() - t0)
 
 
@@ -127,7 +127,7 @@ def mujoco_rt(nthread, members=MJ_B, sim_s=MJ_SIM_S) -> float:
     with BatchMujocoStage(model, list(range(members)), nthread=nthread) as stage:
         bank = BatchController(ctrl, n=members, exact=False)
         t0 = time.perf_counter()
-        run_closed_loop_batch(stage, bank, ref, settle=False)
+        run_closed_loop_batch(stage, bank, ref, protocol=LoopProtocol(0.0, 0.0))
         return members * sim_s / (time.perf_counter() - t0)
 
 
@@ -140,7 +140,7 @@ def _mujoco_worker(members, barrier):
         bank = BatchController(ctrl, n=members, exact=False)
         barrier.wait()
         t0 = time.perf_counter()
-        run_closed_loop_batch(stage, bank, ref, settle=False)
+        run_closed_loop_batch(stage, bank, ref, protocol=LoopProtocol(0.0, 0.0))
         return time.perf_counter() - t0
 
 
