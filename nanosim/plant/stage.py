@@ -33,7 +33,8 @@ __all__ = ["StageConfig", "Trace", "Stage", "rollout_probes_um", "run_open_loop_
 STAGE_ELECTRONICS = ElectronicsConfig()
 _DAC_SPAN = dict(dac_bits=16, dac_full_scale_V=(C.COMMAND_RANGE_V[1] - C.COMMAND_RANGE_V[0]) / 2,
                  dac_center_V=(C.COMMAND_RANGE_V[1] + C.COMMAND_RANGE_V[0]) / 2, thermal_drift=False)
-# Stage v1 (the first stage model, kept for comparison): no computation delay, amplifier or gauge bandwidth, no amplifier
+# Stage v1 (the first stage model, kept for comparison): no computation delay, amplifier or gauge
+# bandwidth, no amplifier
 # noise; DAC noise 1.39 mV low-passed by two poles at 5 Hz (a level and corner calibrated to
 # the open- and closed-loop sigma). For comparisons and ablations.
 STAGE_ELECTRONICS_V1 = ElectronicsConfig(**_DAC_SPAN, computation_delay_samples=0, dac_noise_V=1.39e-3,
