@@ -17,6 +17,8 @@ __all__ = [
     "PAPER_MODE_DAMPING_MEAN", "PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ", "PAPER", "PAPER_FULL_STROKE_UM",
     "PAPER_OPEN_LOOP_TRAVEL_UM", "PAPER_HYSTERESIS_INPUT_PERCENT", "PAPER_CREEP_POLE_RAD_S",
     "PAPER_CREEP_ZERO_OVER_POLE", "PAPER_PRBS_BANDS_HZ", "PAPER_STEP_UM", "PAPER_CONTOUR_SPEED_UM_S",
+    "PAPER_SAMPLE_RATE_HZ", "tustin_warp_hz", "tustin_unwarp_hz", "tustin_unwarp_damping", "STAGE_MODES_HZ",
+    "STAGE_MODE_DAMPING_MEAN",
     "Band", "BANDS", "MODE_REL_TOL",
     "STATIC_GAIN_REL_TOL", "CLOSURE_VIOLATION_MAX", "SMALL_STEP_TOL_NM",
 ]
@@ -31,6 +33,9 @@ PAPER_HYSTERESIS_INPUT_PERCENT = 14.0          # open-loop input hysteresis (%),
 # zero / pole ratios from ... to (-)
 PAPER_CREEP_POLE_RAD_S = (28.97, 33.11)
 PAPER_CREEP_ZERO_OVER_POLE = (1.08, 1.11)
+
+# --- sampling (Sec. 3): the loop and the identification run at 4 kHz ----------------------------
+PAPER_SAMPLE_RATE_HZ = 4000.0
 
 # --- identification (Sec. 3, Fig. 4a): a step, then PRBS in three bands of 1 s each, at most 0.5 V ----------
 PAPER_PRBS_BANDS_HZ = (50.0, 100.0, 200.0)
@@ -50,6 +55,47 @@ PAPER_APPENDIX_A_DAMPING = {
     "C": (0.00295, 0.00352, 0.00377, 0.00767, 0.00366, 0.00341),
 }
 PAPER_MODE_DAMPING_MEAN = tuple(float(np.mean(col)) for col in zip(*PAPER_APPENDIX_A_DAMPING.values()))
+
+
+
+def tustin_warp_hz(f_hz, fs_hz: float = PAPER_SAMPLE_RATE_HZ):
+    """Continuous frequency that Tustin's d2c (no prewarp) gives a discrete mode of true frequency ``f_hz``.
+
+    A continuous mode at ``f_hz`` sampled exactly has its pole at angle theta = 2 pi f / fs; the
+    bilinear map s = (2 fs) (z - 1) / (z + 1) puts that angle at f_w = (fs / pi) tan(pi f / fs)
+    (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed., Sec. 6.3.2).
+    """
+    f = np.asarray(f_hz, float)
+    if np.any(f < 0) or np.any(f >= fs_hz / 2):
+        raise ValueError(f"f_hz: expected 0 <= f < fs/2 = {fs_hz / 2} Hz, got {f_hz!r}")
+    return fs_hz / np.pi * np.tan(np.pi * f / fs_hz)
+
+
+def tustin_unwarp_hz(f_hz, fs_hz: float = PAPER_SAMPLE_RATE_HZ):
+    """True frequency of a mode that Tustin's d2c (no prewarp) reported at ``f_hz``: inverse of
+    :func:`tustin_warp_hz`, f = (fs / pi) atan(pi f_w / fs).
+    """
+    f = np.asarray(f_hz, float)
+    if np.any(f < 0):
+        raise ValueError(f"f_hz: expected frequencies >= 0, got {f_hz!r}")
+    return fs_hz / np.pi * np.arctan(np.pi * f / fs_hz)
+
+
+def tustin_unwarp_damping(zeta, f_hz, fs_hz: float = PAPER_SAMPLE_RATE_HZ):
+    """True damping ratio of a lightly damped mode that Tustin's d2c reported as ``zeta`` at ``f_hz``.
+
+    To first order in zeta, s = 2 fs tanh(s_true / (2 fs)) scales the decay rate by 1 / cos^2(theta)
+    and the frequency by tan(theta) / theta (theta = pi f_true / fs), so the reported damping is
+    zeta_w = zeta_true 2 theta / sin(2 theta).
+    """
+    theta = np.pi * tustin_unwarp_hz(f_hz, fs_hz) / fs_hz
+    return np.asarray(zeta, float) * np.sin(2 * theta) / (2 * theta)
+
+
+# The stage the paper's procedure implies: its Tustin-converted modes and damping, unwarped (the MJCF's
+# calibration targets; the identification with the paper's d2c returns PAPER_MODES_HZ from it).
+STAGE_MODES_HZ = tuple(float(f) for f in tustin_unwarp_hz(PAPER_MODES_HZ))
+STAGE_MODE_DAMPING_MEAN = tuple(float(z) for z in tustin_unwarp_damping(PAPER_MODE_DAMPING_MEAN, PAPER_MODES_HZ))
 
 # --- H-infinity design (Sec. 4.2) --------------------------------------------
 PAPER_GAMMA = 1.34

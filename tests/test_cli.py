@@ -25,7 +25,7 @@ def test_modes_json_has_the_issue_keys_and_paper_modes():
             "full_compliance"} <= set(data)
     f = [m["freq_hz"] for m in data["modes"]]
     assert f == sorted(f) and max(f) < 3000.0
-    assert_allclose([x for x in f if x < 1000.0], P.PAPER_MODES_HZ, rtol=0.03)
+    assert_allclose([x for x in f if x < 1000.0], P.STAGE_MODES_HZ, rtol=0.01)     # the paper's, unwarped
     assert all({"freq_hz", "damping_ratio", "axis", "sensor_participation", "kinetic_energy_share"} <= set(m)
                for m in data["modes"] + data["full_compliance"]["modes"])
     assert set(data["table_rotation_urad"]) == {"X", "Y", "Z"}

@@ -81,8 +81,9 @@ def test_static_gain_is_3um_per_volt_times_J(modal):
 def test_modes_match_paper_with_axes_split_and_damping(modal):
     phys = modal.below(1000.0)
     assert len(phys) == 6, [m.freq_hz for m in phys]
-    for mode, f, axis, zeta in zip(phys, P.PAPER_MODES_HZ, P.PAPER_MODE_AXES, P.PAPER_MODE_DAMPING_MEAN):
-        assert_allclose(mode.freq_hz, f, rtol=0.03)
+    # the stage the paper's procedure implies: its Tustin-warped modes and damping, unwarped
+    for mode, f, axis, zeta in zip(phys, P.STAGE_MODES_HZ, P.PAPER_MODE_AXES, P.STAGE_MODE_DAMPING_MEAN):
+        assert_allclose(mode.freq_hz, f, rtol=0.01)
         assert (mode.axis == "Z") == (axis == "Z"), (mode.freq_hz, mode.axis)
         assert 0.5 * zeta <= mode.damping_ratio <= 1.5 * zeta, (mode.freq_hz, mode.damping_ratio, zeta)
     for lo, hi in ((0, 1), (3, 4)):                          # XY pairs split 1-4 %

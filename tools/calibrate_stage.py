@@ -20,6 +20,8 @@ from nanosim.plant.geometry import CHAINS, DEFAULT_GEOMETRY, HINGE_FAMILIES
 # chain web offsets of a start, in units of half the tolerance: every pattern of a stiffer and a softer
 # chain (the third at the design web), applied to all four families alike or to fb2/swing opposite
 PATTERNS = [dict(zip(CHAINS, p)) for p in itertools.permutations((1.0, -1.0, 0.0))]
+# the prior on each calibrated deviation (calibrate.fit): its bound is the process's 2-sigma tolerance
+PRIOR = 2.0
 
 
 def start(pattern: dict, flip_legs: bool):
@@ -37,7 +39,7 @@ def main() -> int:
     """Fit from every start and print the best."""
     results = []
     for pattern, flip in itertools.product(PATTERNS, (False, True)):
-        r = fit(CALIBRATION_PARAMS, start(pattern, flip), max_nfev=300)
+        r = fit(CALIBRATION_PARAMS, start(pattern, flip), max_nfev=300, prior=PRIOR)
         results.append(r)
         print(f"start {pattern} flip_legs={flip}: cost {r.cost:.3f}")
     best = min(results, key=lambda r: r.cost)

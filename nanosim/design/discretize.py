@@ -8,6 +8,19 @@
 
 Controllers map the tracking error [sensor V] to controller volts; sample times
 are in s, frequencies in Hz.
+
+**Which method is exact.** A design made on a continuous model that is the Tustin
+d2c of an identified discrete model (the project's design models, as the paper's:
+``identification.d2c.d2c_tustin``) is brought back exactly by Tustin: with
+s = (2 / dt) (z - 1) / (z + 1), Kd(z) = K(s(z)), so a controller zero that cancels a
+pole s_p of the design model lands on the identified discrete pole z_p with
+s(z_p) = s_p. Pole matching, and Tustin prewarped at the mode, put it at the angle of
+exp(s_p dt) instead: at the design model's warped frequency f_w = (fs / pi) tan(pi f / fs)
+(:func:`nanosim.paper.tustin_warp_hz`) rather than at the plant's f. The frequency-response check against K(j w)
+measures the warp, not an error of the loop: for such designs use ``"tustin_round_trip"``,
+Tustin checked against K at the frequency the design model put the plant's response,
+Kd(e^{j w dt}) against K(j (2 / dt) tan(w dt / 2)) (the identified discrete loop at w is
+the design loop there, so the check measures only the arithmetic).
 """
 from __future__ import annotations
 
@@ -21,9 +34,11 @@ from nanosim import constants
 from nanosim.design.lti import analysis_grid_hz, as_ss, freqresp, sigma_max, single_threaded_blas
 
 __all__ = ["Discretization", "DISCRETIZATION_METHODS", "discretize_controller", "discretization_error",
+           "round_trip_error",
            "discrete_closed_loop", "error_rel_to_peak", "dc_gain_discrete"]
 
-DISCRETIZATION_METHODS = ("auto", "tustin", "tustin_prewarp", "tustin_modal", "foh", "zoh", "matched_fit")
+DISCRETIZATION_METHODS = ("auto", "tustin", "tustin_round_trip", "tustin_prewarp", "tustin_modal", "foh", "zoh",
+                          "matched_fit")
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,6 +118,22 @@ def discretization_error(K, Kd, f_max_hz: float = 500.0):
     return float(e[i]), float(f[i]), f, e
 
 
+def round_trip_error(K, Kd, f_max_hz: float = 500.0):
+    """Relative error of ``Kd`` against ``K`` at the Tustin-warped frequency.
+
+    ``max sigma_max(Kd(e^{j w dt}) - K(j w_w)) / sigma_max(K(j w_w))`` over ``0 <= f <= f_max_hz``,
+    ``w_w = (2 / dt) tan(w dt / 2)``: zero (to rounding) when ``Kd`` is the Tustin image of ``K``.
+    Returns ``(max_rel_error, worst_freq_hz)``.
+    """
+    f = _check_grid_hz(K, f_max_hz)
+    dt = float(Kd.dt)
+    f_w = np.tan(np.pi * f * dt) / (np.pi * dt)
+    Hc = freqresp(K, f_w)
+    e = sigma_max(freqresp(Kd, f) - Hc) / np.maximum(sigma_max(Hc), 1e-300)
+    i = int(np.argmax(e))
+    return float(e[i]), float(f[i])
+
+
 def _tustin_blocks(K, dt, prewarp: bool):
     """Tustin in block-diagonal (modal) coordinates; with ``prewarp`` each real
     Schur block (one real pole or one complex pair, |p| below 0.8 x Nyquist) gets
@@ -171,7 +202,7 @@ def _matched_fit(K, dt, f_fit_hz):
 def _discretize_one(K, dt, method, f_check_hz, prewarp_hz):
     import control as ct
     nyq = 0.5 / dt
-    if method == "tustin":
+    if method in ("tustin", "tustin_round_trip"):
         return ct.c2d(K, dt, "tustin")
     if method == "tustin_prewarp":
         fp = f_check_hz if prewarp_hz is None else prewarp_hz
@@ -199,6 +230,8 @@ def discretize_controller(K, dt: float = constants.CONTROL_PERIOD_S, method: str
         Sample time [s] (paper: 4 kHz).
     method : str, default "auto"
         ``"tustin"`` -- ``control.c2d(K, dt, 'tustin')``;
+        ``"tustin_round_trip"`` -- the same, for a ``K`` designed on a model that is the Tustin
+        d2c of a discrete one: the check is :func:`round_trip_error` (see the module docstring);
         ``"tustin_prewarp"`` -- Tustin prewarped at ``prewarp_hz`` (default ``f_check_hz``);
         ``"tustin_modal"`` -- Tustin in modal coordinates, each mode prewarped at its
         own natural frequency;
@@ -231,7 +264,10 @@ def discretize_controller(K, dt: float = constants.CONTROL_PERIOD_S, method: str
 
     def attempt(m):
         Kd = _discretize_one(K, dt, m, f_check_hz, prewarp_hz)
-        err, fw, _, _ = discretization_error(K, Kd, f_check_hz)
+        if m == "tustin_round_trip":
+            err, fw = round_trip_error(K, Kd, f_check_hz)
+        else:
+            err, fw, _, _ = discretization_error(K, Kd, f_check_hz)
         errors[m] = err
         cands[m] = (Kd, err, fw)
 

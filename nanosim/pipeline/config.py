@@ -135,9 +135,11 @@ class DesignConfig:
 
     @classmethod
     def paper(cls, **overrides) -> "DesignConfig":
-        """The paper's set-up: 10-state design model, single H-infinity loop, no damping loop, no delay."""
-        return replace(cls(reduced_order=PAPER_REDUCED_ORDER, damping_zeta=0.0, delay_samples=0, architecture="hinf"),
-                       **overrides)
+        """The paper's set-up: 10-state design model, single H-infinity loop, no damping loop, no delay,
+        discretized by Tustin (the exact inverse of the design model's Tustin d2c).
+        """
+        return replace(cls(reduced_order=PAPER_REDUCED_ORDER, damping_zeta=0.0, delay_samples=0, architecture="hinf",
+                           discretization="tustin_round_trip"), **overrides)
 
     @property
     def has_damping_loop(self) -> bool:

@@ -26,8 +26,8 @@ from nanosim.pipeline.config import IdentifyConfig
 from nanosim.plots.identify import (figure_bode_grid, figure_parametric_vs_h1, figure_singular_values,
                                     figure_time_fit)
 
-__all__ = ["save_model", "identify_json", "residual_bands", "run_identify", "RESIDUAL_BANDS_HZ", "run_identify_data",
-           "model_npz_from_mat", "save_model_mat"]
+__all__ = ["save_model", "identify_json", "residual_bands", "tustin_modes", "run_identify", "RESIDUAL_BANDS_HZ",
+           "run_identify_data", "model_npz_from_mat", "save_model_mat"]
 
 # where the input-disturbance model of a design (the LQG's hysteresis/creep state) can be checked: below the
 # first resonance (~175 Hz), where the model's gain is large and the gauge noise referred to the input small
@@ -57,6 +57,28 @@ def save_model(path, result: IdentifiedStage) -> Path:
                      order_per_column=np.array([c.order for c in result.columns]))
 
 
+def tustin_modes(result: IdentifiedStage, tol: float = 0.004, zeta_max: float = 0.05) -> list[dict]:
+    """Lightly damped modes of the continuous model ``result.sysc`` (the discrete model by Tustin's d2c).
+
+    These are the modes as the paper reports them (Sec. 3: its discrete model converted by Tustin without
+    prewarping), each at f_w = (fs / pi) tan(pi f / fs) (:func:`nanosim.paper.tustin_warp_hz`) of the
+    discrete model's f = |log z| / (2 pi dt) in ``modes_hz``. Poles within ``tol`` relative frequency
+    (the same mode in several columns) are merged; ``zeta_max`` separates resonances from the creep and
+    drift poles.
+    """
+    m = ident.modes_from_model(np.asarray(result.sysc.A, float))
+    pairs = sorted((float(f), float(z)) for f, z in zip(m.freq_hz, m.damping) if f > 20.0 and z < zeta_max)
+    merged: list[tuple[list, list]] = []
+    for f, z in pairs:
+        if merged and abs(f - merged[-1][0][-1]) <= tol * f:
+            merged[-1][0].append(f)
+            merged[-1][1].append(z)
+        else:
+            merged.append(([f], [z]))
+    return [{"freq_hz": float(np.median(fs)), "damping_ratio": float(np.median(zs)), "seen_in_columns": len(fs)}
+            for fs, zs in merged]
+
+
 def identify_json(result: IdentifiedStage, extra: dict | None = None) -> dict:
     """The content of ``identify.json``: fit factors, orders, modes, settings, DC gain, units."""
     s = result.settings
@@ -66,6 +88,7 @@ def identify_json(result: IdentifiedStage, extra: dict | None = None) -> dict:
         "order_per_column": [c.order for c in result.columns],
         "total_order": int(sum(c.order for c in result.columns)),
         "modes_hz": merged_modes(result),
+        "modes_tustin_hz": tustin_modes(result),
         "column_modes": result.modes,
         "settings": {"seed": s.seed, "order_per_column": s.order_per_column, "amplitude_V": s.amplitude_V,
                      "offset_piezo_V": s.offset_piezo_V, "ideal_stage": s.ideal, "shared_poles": s.shared_poles,
@@ -73,7 +96,9 @@ def identify_json(result: IdentifiedStage, extra: dict | None = None) -> dict:
                      "excitation": "step + PRBS in prbs_bands_hz, 1 s each, 4 kHz, one actuator at a time",
                      "validation": "separate record with another PRBS seed"},
         "dc_gain_sensor_V_per_V": np.real(ct.dcgain(result.sysc)).round(5).tolist(),
-        "units": {"fit_percent": "%", "modes_hz": "Hz", "dc_gain_sensor_V_per_V": "sensor V per controller V",
+        "units": {"fit_percent": "%", "modes_hz": "Hz (discrete model's poles, s = log(z) / dt)",
+                  "modes_tustin_hz": "Hz (continuous model by Tustin's d2c, as the paper reports its modes)",
+                  "dc_gain_sensor_V_per_V": "sensor V per controller V",
                   "input_referred_residual": "controller V / sqrt(Hz)"},
         "input_referred_residual": residual_bands(result),
     }

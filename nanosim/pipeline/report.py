@@ -81,9 +81,10 @@ def _rows(run: Path):
     else:
         below = [m for m in modes.get("modes", []) if m.get("freq_hz", 0) < 1000]
         found = [m["freq_hz"] for m in below]
-        for f, axis in zip(P.PAPER_MODES_HZ, P.PAPER_MODE_AXES):
+        # the stage's modes against the paper's unwarped (its Tustin d2c reports f_w = (fs/pi) tan(pi f/fs))
+        for f, f_paper, axis in zip(P.STAGE_MODES_HZ, P.PAPER_MODES_HZ, P.PAPER_MODE_AXES):
             near = min(found, key=lambda x: abs(x - f)) if found else None
-            add(S_STAGE, f"mode near {f:.0f} Hz ({axis})", f, near, "Hz",
+            add(S_STAGE, f"mode near {f:.1f} Hz ({axis}; the paper's {f_paper:.0f} Hz unwarped)", f, near, "Hz",
                 lambda v, f=f: _num(v) and abs(v - f) <= P.MODE_REL_TOL * f, f"within {100 * P.MODE_REL_TOL:g} %")
         for m in below:
             add(S_STAGE, f"damping ratio of the {m['freq_hz']:.0f} Hz mode", None, m.get("damping_ratio"), "-",

@@ -76,8 +76,8 @@ class DampingSpec:
     piezo_loss_factor : APA35XS, 1 / Q_m of its soft-PZT stack and shell interfaces.
     """
 
-    hinge_loss_factor: float = 5.25e-3     # fitted: nanosim.plant.calibrate.fit_damping
-    piezo_loss_factor: float = 0.0472      # fitted: nanosim.plant.calibrate.fit_damping
+    hinge_loss_factor: float = 4.80e-3     # fitted: nanosim.plant.calibrate.fit_damping
+    piezo_loss_factor: float = 0.0494      # fitted: nanosim.plant.calibrate.fit_damping
     reference_frequency_Hz: float = 350.0  # about the geometric mean of the 175-740 Hz band
 
     def beta_s(self, loss_factor: float) -> float:

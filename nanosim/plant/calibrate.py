@@ -1,9 +1,14 @@
 """Fit bounded physical quantities of the stage geometry to the paper's modes and static gain.
 
-Targets (paper Secs. 2-3): the six identified modes 175/179 (XY), 245 (Z),
-460/474 (XY), 740 Hz (Z) and the static gain 3.0 um/V x J (rows X, Y, Z,
-columns A, B, C); nothing else. The model is evaluated on MuJoCo's own
-matrices (M, K, B and the closure Jacobian of the compiled MJCF) with the
+Targets (paper Secs. 2-3): the six identified modes and the static gain
+3.0 um/V x J (rows X, Y, Z, columns A, B, C); nothing else. The paper's modes
+(175/179 XY, 245 Z, 460/474 XY, 740 Hz Z) are those of its discrete 4 kHz model
+converted by Tustin without prewarping, so they are warped upward; the targets
+are the stage frequencies that procedure implies,
+:data:`nanosim.paper.STAGE_MODES_HZ` = (fs / pi) atan(pi f_paper / fs)
+(:func:`nanosim.paper.tustin_unwarp_hz`), and the damping targets are the
+Appendix A ratios unwarped the same way (:data:`nanosim.paper.STAGE_MODE_DAMPING_MEAN`).
+The model is evaluated on MuJoCo's own matrices (M, K, B and the closure Jacobian of the compiled MJCF) with the
 closures exact (:func:`nanosim.plant.mechanics.reduced_modes`); the MuJoCo
 time-stepping model agrees with this to < 0.5 % (tests/test_stage_model.py).
 
@@ -19,7 +24,10 @@ Two fits use the same machinery:
   value -- one bound on each notch's total deviation, so the chains' differences
   (the fabrication asymmetry that splits the XY pairs) stay inside it too --,
   the cut radius within the same tolerance, link widths within +/-0.1 mm and
-  the target mass within +/-10 %.
+  the target mass within +/-10 %. Each bound is read as the process's 2-sigma
+  tolerance: a Gaussian prior on the deviation from the design value
+  (``fit(..., prior=2)``, ``tools/calibrate_stage.py``) keeps the estimate off the
+  bounds, which the XY pair splits would otherwise push the webs onto.
 
 Every fit reports its residuals and which bounds are active
 (:class:`FitResult`).
@@ -35,7 +43,7 @@ from scipy.optimize import least_squares
 import mujoco
 
 from nanosim import constants as C
-from nanosim.paper import PAPER_MODE_DAMPING_MEAN, PAPER_MODES_HZ
+from nanosim.paper import PAPER_MODE_AXES, STAGE_MODE_DAMPING_MEAN, STAGE_MODES_HZ
 from nanosim.plant.build import BuildOptions, DampingSpec, build_spec
 from nanosim.plant.geometry import CHAINS, DEFAULT_GEOMETRY, HINGE_FAMILIES, StageGeometry
 from nanosim.plant.mechanics import home_data, mechanical_matrices, reduced_modes, static_compliance, tendon_jacobian
@@ -45,8 +53,8 @@ __all__ = ["FitParam", "ModeSummary", "FitResult", "DampingFit", "DESIGN_PARAMS"
            "set_param", "volts_to_force_N"]
 
 EDM_TOLERANCE_M = 10e-6         # standard wire EDM finish (mjcf/SOURCES.md item 8, vendor data)
-TARGET_XY_HZ = tuple(f for f, a in zip(PAPER_MODES_HZ, ("XY", "XY", "Z", "XY", "XY", "Z")) if a == "XY")
-TARGET_Z_HZ = tuple(f for f, a in zip(PAPER_MODES_HZ, ("XY", "XY", "Z", "XY", "XY", "Z")) if a == "Z")
+TARGET_XY_HZ = tuple(f for f, a in zip(STAGE_MODES_HZ, PAPER_MODE_AXES) if a == "XY")
+TARGET_Z_HZ = tuple(f for f, a in zip(STAGE_MODES_HZ, PAPER_MODE_AXES) if a == "Z")
 OBSERVABLE = 3e-3               # an XY mode counts as seen by the probes above this share of the static gain
 Z_SEEN = 1e-4                   # a Z mode (Z-dominated probe participation) is counted from this share up
 MIN_OBSERVABILITY = 0.01        # the paper identified all six: each must carry >= 1 % of the static gain
@@ -224,11 +232,16 @@ class FitResult:
 
 
 def fit(params, g0: StageGeometry = DEFAULT_GEOMETRY, symmetric: bool = False, level: str = "reduced",
-        max_nfev: int = 200, verbose: int = 0, diff_step: float = 2e-3) -> FitResult:
+        max_nfev: int = 200, verbose: int = 0, diff_step: float = 2e-3, prior: float = 0.0) -> FitResult:
     """Least squares over ``params`` (:class:`FitParam`, bounds absolute) from ``g0``.
 
     Parameters are scaled to [0, 1] between their bounds; the result lists every parameter within
-    0.5 % of the range of a bound as active.
+    0.5 % of the range of a bound as active. With ``prior`` > 0 each parameter also contributes the
+    residual ``prior (x - m) / h`` (m, h: the centre and half-width of its bounds): a Gaussian prior on
+    the deviation from the design value with standard deviation h / ``prior`` (``prior = 2``: the bound
+    is the process's 2-sigma tolerance), against residuals scaled as 1 % on a mode (a maximum a
+    posteriori estimate; Tarantola, *Inverse Problem Theory*, SIAM 2005, Sec. 3.2). The bounds stay
+    hard; the prior keeps a parameter off them unless the targets pull it further.
     """
     params = tuple(params)
     lo = np.array([p.lo for p in params])
@@ -243,11 +256,14 @@ def fit(params, g0: StageGeometry = DEFAULT_GEOMETRY, symmetric: bool = False, l
             g = set_param(g, p.path, float(v))
         return g
 
+    def prior_r(u):
+        return 2.0 * prior * (u - 0.5) if prior > 0 else np.zeros(0)
+
     def fun(u):
         try:
-            return residuals(summarize(geom(u), level), symmetric=symmetric)
+            return np.concatenate([residuals(summarize(geom(u), level), symmetric=symmetric), prior_r(u)])
         except ValueError:
-            return np.full(21 if symmetric else 23, 1e3)
+            return np.full((21 if symmetric else 23) + prior_r(u).size, 1e3)
 
     x0 = np.array([get_param(g0, p.path) for p in params])
     u0 = np.clip((x0 - lo) / (hi - lo), 1e-6, 1 - 1e-6)
@@ -258,7 +274,7 @@ def fit(params, g0: StageGeometry = DEFAULT_GEOMETRY, symmetric: bool = False, l
     values = {p.path: float(v) for p, v in zip(params, lo + (hi - lo) * sol.x)}
     active = tuple(p.path + (" (lower)" if u < 0.005 else " (upper)") for p, u in zip(params, sol.x)
                    if u < 0.005 or u > 0.995)
-    r = residuals(s, symmetric=symmetric)
+    r = np.concatenate([residuals(s, symmetric=symmetric), prior_r(sol.x)])
     return FitResult(geometry=g, summary=s, residuals=r, values=values, active_bounds=active,
                      cost=float(0.5 * r @ r))
 
@@ -316,7 +332,7 @@ CALIBRATION_PARAMS = calibration_params()
 
 @dataclass(frozen=True)
 class DampingFit:
-    """Loss factor per damping source fitted to the paper's Appendix A damping (column means).
+    """Loss factor per damping source fitted to the paper's Appendix A damping (column means, unwarped).
 
     hinge_loss_factor, piezo_loss_factor : at ``reference_frequency_Hz`` (stiffness-proportional damping).
     strain_energy_share : (6, 2) share of each matched mode's strain energy in the hinges, the APAs.
@@ -346,7 +362,7 @@ def strain_energy_shares(model: mujoco.MjModel, shapes_q: np.ndarray) -> np.ndar
     return e / e.sum(axis=1, keepdims=True)
 
 
-def fit_damping(g: StageGeometry, target=PAPER_MODE_DAMPING_MEAN, level: str = "reduced",
+def fit_damping(g: StageGeometry, target=STAGE_MODE_DAMPING_MEAN, level: str = "reduced",
                 reference_frequency_Hz: float = DampingSpec.reference_frequency_Hz) -> DampingFit:
     """Two loss factors (hinges, APAs) fitted to the six modes' damping by weighted linear least squares.
 

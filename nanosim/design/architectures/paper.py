@@ -3,9 +3,11 @@
 Tuning rule (paper Sec. 4, DOI 10.1115/1.2936861): DC-matched balanced truncation of the
 identified model to 10 states; mixed-sensitivity H-infinity synthesis
 ``min || [Wp S; Wu KS; Wt T] ||_inf`` with the paper's weights (optimal ``gamma``, the
-central controller of ``hinfsyn``); discretized at 4 kHz (Tustin, or the best-checked
-alternative of :func:`~nanosim.design.discretize.discretize_controller`). The design
-model has no delay: the paper's did not.
+central controller of ``hinfsyn``); discretized at 4 kHz by Tustin. The design model is the
+Tustin d2c of the identified discrete model (:func:`~nanosim.design.architectures.common.as_continuous`),
+so Tustin is its exact inverse: a controller zero that cancels a pole of the design model lands
+on the identified discrete pole (the notches sit on the plant's resonances, not on their warped
+images). The design model has no delay: the paper's did not.
 """
 from __future__ import annotations
 
@@ -20,7 +22,8 @@ from nanosim.paper import PAPER_REDUCED_ORDER
 __all__ = ["design_paper", "TUNING_RULE"]
 
 TUNING_RULE = ("the paper's: 10-state balanced truncation, optimal S/KS/T H-infinity with the paper's weights, "
-               "4 kHz discretization; no delay in the design model")
+               "4 kHz Tustin discretization (the exact inverse of the design model's d2c); "
+               "no delay in the design model")
 
 
 @single_threaded_blas
@@ -49,7 +52,7 @@ def design_paper(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES
     Gc = as_continuous(G)
     red = reduce_model(Gc, reduced_order)
     d = design_hinf(red.G_reduced, Weights.coerce(weights))
-    disc = discretize_controller(d.K, dt, "auto")
+    disc = discretize_controller(d.K, dt, "tustin_round_trip")
     params = {"reduced_order": red.order, "gamma": d.gamma, "controller_order": d.controller_order,
               "design_bandwidth_S_hz": d.bandwidth_S_hz, "design_bandwidth_T_hz": d.bandwidth_T_hz,
               "discretization": disc.method, "design_model_delay_samples": 0, "loop_delay_samples": delay_samples}
