@@ -234,33 +234,36 @@ def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNC
     return doc
 
 
-def _export_lqg(out: Path, G, dt: float, loop_delay: int, units, say,
-                architecture: str = "lqg") -> dict:
-    """Overwrite ``controller.npz`` with the LQG design ``architecture`` (``"lqg"``, ``"lqg-gain-range"`` or
-    ``"lqg-bandwidth"``, :mod:`nanosim.design.architectures.lqg`); the ``design.json`` entries that say so.
+def _export_bench(out: Path, G, dt: float, loop_delay: int, units, say, architecture: str) -> dict:
+    """Overwrite ``controller.npz`` with the bench design ``architecture``
+    (:data:`nanosim.design.architectures.DESIGN_RULES`); the ``design.json`` entries that describe it.
     """
     from nanosim.design.architectures import design
     bd = design(architecture, G, dt=dt, delay_samples=loop_delay)
     Akd, Bkd, Ckd, Dkd, _ = bd.matrices
-    lqg_units = np.array([*units[:2], "inputs [e; y]: e = r - y (n_error = 3 columns), then the measurement y in "
-                          "sensor volts", "u = Ckd x + Dkd [e; y], x[k+1] = Akd x[k] + Bkd [e; y] (discrete only)",
-                          "dt in seconds"])
-    fileio.write_npz(out / A.CONTROLLER_NPZ, Akd=Akd, Bkd=Bkd, Ckd=Ckd, Dkd=Dkd, dt=np.float64(dt),
-                     n_error=np.int64(bd.n_error), units=lqg_units, sign_convention=np.array(SIGN_CONVENTION),
-                     method=np.array("lqg"), tuning_rule=np.array(bd.tuning_rule))
+    io = ("inputs [e; y]: e = r - y (n_error = 3 columns), then the measurement y in sensor volts" if bd.two_dof
+          else "input e = r - y (n_error = 3 columns) in sensor volts")
+    bench_units = np.array([*units[:2], io, "u = Ckd x + Dkd [e; y], x[k+1] = Akd x[k] + Bkd [e; y] (discrete only)",
+                            "dt in seconds"])
     p = bd.parameters
-    say(f"exported controller: {architecture} ({bd.K.nstates} states), predicted multiloop disk margin "
-        f"{p['predicted_disk_margin']['multiloop']:.3f} (at the top of the piezo's gain range "
-        f"{p['predicted_disk_margin_top_of_gain_range']['multiloop']:.3f}), S bandwidth "
-        f"{p['predicted_bandwidth_S_hz']:.1f} Hz")
-    default = ", the bench's default by the scorecard rule" if architecture == "lqg" else ""
-    return {"architecture": architecture,
+    extra = {} if p.get("gamma") is None else {"gamma": np.float64(p["gamma"])}
+    fileio.write_npz(out / A.CONTROLLER_NPZ, Akd=Akd, Bkd=Bkd, Ckd=Ckd, Dkd=Dkd, dt=np.float64(dt),
+                     n_error=np.int64(bd.n_error), units=bench_units, sign_convention=np.array(SIGN_CONVENTION),
+                     method=np.array(architecture), tuning_rule=np.array(bd.tuning_rule), **extra)
+    dm = (p.get("predicted_disk_margin") or {}).get("multiloop")
+    say(f"exported controller: {architecture} ({bd.K.nstates} states)"
+        + ("" if p.get("gamma") is None else f", gamma {p['gamma']:.3f}")
+        + ("" if dm is None else f", predicted multiloop disk margin {dm:.3f}"))
+    return {"architecture": architecture, "controller_order": int(bd.K.nstates),
+            "gamma": None if p.get("gamma") is None else float(p["gamma"]),
+            "tuning_rule": bd.tuning_rule,
             "exported_controller": {"architecture": architecture, "tuning_rule": bd.tuning_rule,
                                     "controller_order": int(bd.K.nstates), "parameters": p},
-            "architecture_note": (f"controller.npz holds the {architecture} design (nanosim.design.architectures.lqg"
-                                  f"{default}); gamma, S/T peaks and bandwidths, "
-                                  "controller_order and the closed_loop_* entries describe the H-infinity "
-                                  "reference design of these settings (nanosim design --architecture hinf)")}
+            "architecture_note": (f"controller.npz holds the {architecture} design (nanosim.design.architectures; "
+                                  f"nanosim design --architecture NAME exports another bench member, --paper-design "
+                                  f"the paper's own); reference_design and the S/T peaks, bandwidths and closed_loop_* "
+                                  f"entries describe the mixed-sensitivity reference of these settings (--architecture "
+                                  f"mixsyn), whose figures are fig12, fig18, fig21 and fig22")}
 
 
 def _input_ref(path, out_dir) -> dict:
@@ -457,11 +460,15 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
         summary["versions"] = {"control": _c.__version__, "slycot": _s.__version__, "numpy": np.__version__}
     except Exception:  # pragma: no cover
         pass
-    if cfg.architecture != "hinf":
-        summary.update(_export_lqg(out, Gd_full if Gd_full is not None else G_full, dt, loop_delay, units, say,
-                                   cfg.architecture))
+    summary["reference_design"] = {"architecture": "mixsyn", "gamma": summary.get("gamma"),
+                                   "controller_order": summary.get("controller_order"),
+                                   "weights": W.to_dict()}
+    if cfg.architecture != "mixsyn":
+        summary.update(_export_bench(out, Gd_full if Gd_full is not None else G_full, dt, loop_delay, units, say,
+                                     cfg.architecture))
     else:
-        summary["architecture"] = "hinf"
+        summary.update({"architecture": "mixsyn", "tuning_rule": "mixed-sensitivity S/KS/T H-infinity of these "
+                        "settings (nanosim.design.hinf.design_hinf)"})
     fileio.write_json(out / A.DESIGN_JSON, summary)
     record_timings(out, {A.DESIGN_JSON: {"timings_s": timings}})
 
