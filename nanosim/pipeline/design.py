@@ -266,6 +266,16 @@ def _export_bench(out: Path, G, dt: float, loop_delay: int, units, say, architec
                                   f"mixsyn), whose figures are fig12, fig18, fig21 and fig22")}
 
 
+def _mode_damping(controller_npz, plants: dict) -> dict:
+    """Per plant as the loop runs it: each lightly damped mode's open-loop damping and the exported controller's
+    least closed-loop damping near it (:func:`nanosim.design.architectures.hinf_fourblock.mode_damping_table`).
+    """
+    from nanosim.design.architectures.hinf_fourblock import mode_damping_table
+    from nanosim.design.robustness import controller_systems
+    K, Ky = controller_systems(controller_npz)
+    return {k: mode_damping_table(p.G, K, delay_samples=p.delay_samples, Ky=Ky) for k, p in plants.items()}
+
+
 def _input_ref(path, out_dir) -> dict:
     """An input file as design.json records it, with its sha256.
 
@@ -481,6 +491,8 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
     plants["identified"] = (LoopPlant.identified(Gd, delay_samples=loop_delay) if Gd is Gd_full
                             else LoopPlant.twin(Gd, label="full model"))
     write_robustness(out, out / A.CONTROLLER_NPZ, plants, figures=figures)
+    summary["closed_loop_mode_damping"] = _mode_damping(out / A.CONTROLLER_NPZ, plants)
+    fileio.write_json(out / A.DESIGN_JSON, summary)
     if not figures:
         say(f"done in {time.perf_counter() - t_start:.1f} s (no figures) -> {out}")
         return dataclasses.replace(d, reduction=red, discretization=disc)
