@@ -88,8 +88,9 @@ def test_four_block_design_is_stable_with_finite_gamma_and_damps_the_first_pair(
     p = fourblock.parameters
     assert math.isfinite(p["gamma"]) and p["gamma"] >= p["gamma_min"] > 0
     assert p["gamma_grid_check"] <= 1.05 * p["gamma"]
-    assert p["controller_order"] == fourblock.K.nstates
-    assert closed_loop_spectral_radius(model, fourblock.K) < 1.0
+    assert p["controller_order"] == fourblock.K.nstates == p["feedback_order"] + 6
+    Ke, Ky = fourblock.split()
+    assert closed_loop_spectral_radius(model, Ke, Ky) < 1.0
     # the first pair: the paper's S/KS/T optimum leaves it at (near) open-loop damping, the four-block one damps it
     open_loop = min(z for f, z in __import__("nanosim.design.architectures.common", fromlist=["x"])
                     .lightly_damped_modes(model) if abs(f / FIRST_PAIR_HZ - 1) < 0.05)
@@ -98,6 +99,25 @@ def test_four_block_design_is_stable_with_finite_gamma_and_damps_the_first_pair(
     z_four = p["closed_loop_least_damping_first_pair"]
     assert z_paper is not None and z_paper < 2 * open_loop
     assert z_four is not None and z_four >= 0.02 and z_four > 5 * z_paper
+
+
+def test_reference_prefilter_leaves_the_feedback_and_shapes_the_reference():
+    """u = K (F r - y) with K = I: the error path is F (Tustin, prewarped at 59 Hz), the feedback part is I."""
+    import control as ct
+
+    from nanosim.design.architectures.common import freqresp_z
+    from nanosim.design.architectures.hinf_fourblock import with_reference_prefilter
+    f = np.array([5.0, 59.0, 300.0])
+    K1 = ct.ss(np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((3, 0)), np.eye(3), 250e-6)
+    K2 = with_reference_prefilter(K1)
+    Fe = freqresp_z(ct.ss(K2.A, K2.B[:, :3], K2.C, K2.D[:, :3], 250e-6), f)
+    w = 2 * np.pi * 59.0
+    s = 1j * (2 / 250e-6) * np.tan(np.pi * f * 250e-6) * (w / ((2 / 250e-6) * np.tan(w * 250e-6 / 2)))
+    Fa = w * w / (s * s + 2 * w * s + w * w)
+    np.testing.assert_allclose(Fe[:, 0, 0], Fa, rtol=1e-9)
+    assert abs(Fa[1]) == pytest.approx(0.5, rel=1e-6)            # critically damped: -6 dB at its corner
+    Fy = freqresp_z(ct.ss(K2.A, K2.B[:, 3:], K2.C, K2.D[:, 3:], 250e-6), f)
+    np.testing.assert_allclose(Fe - Fy, np.broadcast_to(np.eye(3), Fe.shape), atol=1e-12)
 
 
 @pytest.mark.slow

@@ -47,7 +47,13 @@ from nanosim.design.lti import (
 )
 from nanosim.design.reduction import multiplicative_uncertainty, reduce_model
 from nanosim.design.loopresponse import delay_ss
-from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES, STAGE_UNCERTAINTY, LoopPlant, analyze_controller
+from nanosim.design.robustness import (
+    IDENTIFIED_DELAY_SAMPLES,
+    STAGE_UNCERTAINTY,
+    LoopPlant,
+    analyze_controller,
+    controller_systems,
+)
 from nanosim.design.weights import Weights
 from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
@@ -56,6 +62,7 @@ from nanosim.pipeline.timings import record_timings
 from nanosim.plots.design import (
     plot_closed_loop_bode,
     plot_controller_bode,
+    plot_exported_loops,
     plot_hankel,
     plot_reduction_bode,
     plot_sensitivity,
@@ -71,6 +78,9 @@ __all__ = ["run_design", "write_robustness", "twin_loop_plant", "model_loop_dela
 # Order of the Pade approximant of the loop's computation delay in the design model (per input):
 # exp(-s T) at T = 250 us to 0.2 deg at 500 Hz.
 DELAY_PADE_ORDER = 2
+
+# the reference (mixsyn) design's loop figures, when another controller is exported: this prefix + the registered name
+REFERENCE_FIGURE_PREFIX = "reference_"
 
 # the damping loop's discretization is checked over 0 .. this [Hz]
 DAMPING_LOOP_CHECK_BAND_HZ = 500.0
@@ -502,12 +512,25 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
         A.FIG08_HANKEL_SV: plot_hankel(red),
         A.FIG09_REDUCTION_BODE: plot_reduction_bode(red),
         A.FIG10_UNCERTAINTY: plot_uncertainty(red),
-        A.FIG11B_WEIGHTS: plot_weights(W),
-        A.FIG12_SENSITIVITY: plot_sensitivity(d),
-        A.FIG18_T_KS: plot_T_KS(d),
-        A.FIG21_CLOSED_LOOP_BODE: plot_closed_loop_bode(d),
-        A.FIG22_CONTROLLER_BODE: plot_controller_bode(d, disc),
     }
+    loops = {A.FIG12_SENSITIVITY: plot_sensitivity(d), A.FIG18_T_KS: plot_T_KS(d),
+             A.FIG21_CLOSED_LOOP_BODE: plot_closed_loop_bode(d), A.FIG22_CONTROLLER_BODE: plot_controller_bode(d, disc)}
+    if cfg.architecture == "mixsyn":
+        figs.update({A.FIG11B_WEIGHTS: plot_weights(W), **loops})
+    else:
+        # the exported controller's loop figures under the registered names, the reference's under its own
+        for name, fig in loops.items():
+            fileio.save_figure(fig, out / f"{REFERENCE_FIGURE_PREFIX}{name}")
+        exp = summary["exported_controller"]
+        Ke, Ky = controller_systems(out / A.CONTROLLER_NPZ)
+        w = exp["parameters"].get("weights")
+        We = Weights.from_dict({k: w[k] for k in ("Wp", "Wt", "Wu")}) if w and all(k in w for k in ("Wp", "Wt", "Wu")) \
+            else None
+        ex = plot_exported_loops(cfg.architecture, Gd, Ke, Ky, delay_samples=loop_delay, weights=We,
+                                 gamma=exp["parameters"].get("gamma"))
+        figs.update({A.FIG11B_WEIGHTS: plot_weights(We if We is not None else W),
+                     A.FIG12_SENSITIVITY: ex["sensitivity"], A.FIG18_T_KS: ex["T_KS"],
+                     A.FIG21_CLOSED_LOOP_BODE: ex["closed_loop_bode"], A.FIG22_CONTROLLER_BODE: ex["controller_bode"]})
     for name, fig in figs.items():
         fileio.save_figure(fig, out / A.figure(name).name)
     say(f"done in {time.perf_counter() - t_start:.1f} s -> {out}")

@@ -51,6 +51,10 @@ then :data:`GAMMA_MARGIN` above the smallest such gamma, where the central contr
 well conditioned) -> 4 kHz by Tustin (:func:`to_discrete`, the inverse of the model's
 conversion, so the discrete loop is the Tustin image of the designed one).
 
+The 2 um step: the loop's T peaks above its bandwidth, and the step overshoots. A reference
+prefilter (second degree of freedom) ``u = K (F r - y)``, ``F`` critically damped at the paper's
+T bandwidth (59 Hz), removes it (:func:`with_reference_prefilter`); the feedback loop is unchanged.
+
 Tuning rule. In the four-block problem the achieved gamma is set by the disturbance blocks
 (the first pair's ``SG`` against the paper's ``Wt``, which bounds ``T`` near the pair), and the
 optimum meets every block only to within gamma, which relaxes the paper's S specification. The
@@ -80,8 +84,9 @@ from nanosim.design.weights import Weights
 from nanosim.paper import PAPER
 
 __all__ = ["design_hinf_fourblock", "fourblock_plant", "disturbance_weight", "synthesize", "to_discrete",
-           "mode_damping", "TUNING_RULE", "REDUCED_ORDER", "HYSTERESIS_FRACTION", "REFERENCE_STEP_UM",
-           "GAMMA_MARGIN", "RESONANT_PEAK", "scaled_wp", "mode_damping_table", "input_noise_V", "least_damping_near"]
+           "mode_damping", "mode_damping_table", "least_damping_near", "scaled_wp", "with_reference_prefilter",
+           "input_noise_V", "TUNING_RULE", "REDUCED_ORDER", "HYSTERESIS_FRACTION", "REFERENCE_STEP_UM",
+           "GAMMA_MARGIN", "RESONANT_PEAK", "PREFILTER_ZETA"]
 
 # states of the design model: the pipeline's reduced order (nanosim.constants.DEFAULT_REDUCED_ORDER)
 REDUCED_ORDER = constants.DEFAULT_REDUCED_ORDER
@@ -95,6 +100,8 @@ GAMMA_MARGIN = 1.1
 # a closed-loop pole of the first pair counts when its resonance amplifies a loop input at least this much
 # (peak of mode_damping, sensor V per input unit): the identified model's per-column copies of a mode stay below
 RESONANT_PEAK = 1.0
+# damping of the reference prefilter (critically damped: no overshoot of its own)
+PREFILTER_ZETA = 1.0
 # Wp's corner-frequency scale: searched in [1, this], to this relative width
 PERFORMANCE_SCALE_MAX = 16.0
 PERFORMANCE_SCALE_RTOL = 0.05
@@ -107,7 +114,7 @@ TUNING_RULE = ("four-block H-infinity (S, SG, KS, T; Skogestad & Postlethwaite S
                "weight Wd from the hysteresis width (Fig. 14) below the paper's 32 Hz bandwidth and the DAC + "
                "amplifier input noise above it, Nyquist-limited; the paper's Wp moved up in frequency by the smallest "
                "factor whose predicted S bandwidth meets the paper's 32 Hz; gamma 1.1 x the smallest verified; Tustin "
-               "both ways")
+               "both ways; reference prefilter critically damped at the paper's 59 Hz T bandwidth")
 
 
 def input_noise_V() -> float:
@@ -349,6 +356,36 @@ def least_damping_near(modes: list[dict], f_hz: float, rel: float = 0.05, rel_pe
     return min(m["zeta"] for m in near if m["peak"] >= rel_peak * top)
 
 
+def with_reference_prefilter(Kd, f_hz: float | None = None, zeta: float = PREFILTER_ZETA):
+    """``u = K (F r - y)`` as a two-degree-of-freedom controller with inputs ``[e; y]``.
+
+    ``F(s) = w^2 / (s^2 + 2 zeta w s + w^2)`` per axis, ``w = 2 pi f_hz`` (default the paper's T bandwidth, 59 Hz),
+    Tustin prewarped at ``w``. With ``r = e + y``: ``u = K F e + K (F - I) y``; the feedback part, ``-K y``, is
+    ``Kd``'s, so margins, mu and the closed-loop poles of the loop are those of ``Kd`` (plus ``F``'s own poles).
+
+    Returns
+    -------
+    control.StateSpace
+        Discrete, inputs ``[e (ny); y (ny)]``, states ``[F (2 ny); K]``.
+    """
+    import control as ct
+    from scipy.linalg import block_diag
+    dt = float(Kd.dt)
+    f = float(PAPER["bwT"] if f_hz is None else f_hz)
+    w = 2 * math.pi * f
+    F1 = ct.ss(ct.c2d(ct.tf([w * w], [1.0, 2 * zeta * w, w * w]), dt, "tustin", prewarp_frequency=w))
+    ny = Kd.ninputs
+    AF, BF, CF, DF = (block_diag(*[np.asarray(m, float)] * ny) for m in (F1.A, F1.B, F1.C, F1.D))
+    Ak, Bk, Ck, Dk = (np.asarray(m, float) for m in (Kd.A, Kd.B, Kd.C, Kd.D))
+    I_y, Z = np.eye(ny), np.zeros((ny, ny))
+    Bv, By = np.hstack([I_y, I_y]), np.hstack([Z, I_y])           # v = e + y = r, and y
+    A = np.block([[AF, np.zeros((AF.shape[0], Ak.shape[0]))], [Bk @ CF, Ak]])
+    B = np.vstack([BF @ Bv, Bk @ (DF @ Bv - By)])
+    C = np.hstack([Dk @ CF, Ck])
+    D = Dk @ (DF @ Bv - By)
+    return ct.ss(A, B, C, D, dt)
+
+
 def mode_damping_table(Gd, Kd, *, delay_samples: int = LOOP_DELAY_SAMPLES, Ky=None) -> list[dict]:
     """For each lightly damped mode of ``Gd`` (:func:`~nanosim.design.architectures.common.distinct_modes_hz`):
     its open-loop damping and the least closed-loop damping near it (:func:`least_damping_near`).
@@ -471,4 +508,10 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELA
               "first_mode_hz": first,
               "closed_loop_least_damping_first_pair": None if first is None else least_damping_near(md, first),
               "closed_loop_modes": md}
-    return BenchDesign("hinf", Kd, ny, TUNING_RULE, params)
+    K2 = with_reference_prefilter(Kd)
+    params.update({"controller_order": int(K2.nstates), "feedback_order": int(Kd.nstates),
+                   "reference_prefilter": {"form": "F(s) = w^2 / (s^2 + 2 zeta w s + w^2) per axis, u = K (F r - y)",
+                                           "freq_hz": float(PAPER["bwT"]), "zeta": PREFILTER_ZETA,
+                                           "source": "the paper's T bandwidth (59 Hz), critically damped",
+                                           "prefilter_states": int(K2.nstates - Kd.nstates)}})
+    return BenchDesign("hinf", K2, ny, TUNING_RULE, params)
