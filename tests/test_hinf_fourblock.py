@@ -132,3 +132,18 @@ def test_default_export_is_the_four_block_design(tmp_path):
     assert des["gamma"] == pytest.approx(float(z["gamma"]))
     assert des["reference_design"]["architecture"] == "mixsyn"
     assert "Wd" in des["exported_controller"]["parameters"]["weights"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(DESIGN_RULES))
+def test_every_architecture_exports_consistent_files(tmp_path, model, name):
+    """The export step of ``nanosim design --architecture NAME``: controller.npz's states are design.json's order."""
+    from nanosim.pipeline.design import _export_bench
+    units = np.array(["e: tracking error", "u: controller volts"])
+    entries = _export_bench(tmp_path, model, float(model.dt), 0, units, lambda msg: None, name)
+    z = np.load(tmp_path / "controller.npz")
+    assert entries["architecture"] == name == entries["exported_controller"]["architecture"]
+    assert z["Akd"].shape[0] == entries["controller_order"] == entries["exported_controller"]["controller_order"]
+    assert int(z["n_error"]) == 3 and z["Bkd"].shape[1] in (3, 6)
+    if entries["gamma"] is not None:
+        assert float(z["gamma"]) == pytest.approx(entries["gamma"]) and math.isfinite(entries["gamma"])
