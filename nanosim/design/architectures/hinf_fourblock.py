@@ -415,7 +415,7 @@ def scaled_wp(Wp, scale: float):
 @single_threaded_blas
 def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES,
                           reduced_order: int = REDUCED_ORDER, weights=None,
-                          bandwidth_hz: float | None = None) -> BenchDesign:
+                          bandwidth_hz: float | None = None, reference_prefilter: bool = True) -> BenchDesign:
     """The four-block H-infinity design of the module docstring.
 
     Parameters
@@ -432,11 +432,15 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELA
         ``Wp``, ``Wt``, ``Wu``; None: the paper's.
     bandwidth_hz : float or None
         The required S bandwidth of the tuning rule; None: the paper's 32 Hz.
+    reference_prefilter : bool
+        Add the reference prefilter (:func:`with_reference_prefilter`; False: the one-degree-of-freedom loop,
+        whose reference-to-error bandwidth is its S bandwidth).
 
     Returns
     -------
     BenchDesign
-        Error-only controller; ``parameters`` holds gamma, the order, the weights and their sources.
+        Inputs ``[e; y]`` with the prefilter (``e`` only without); ``parameters`` holds gamma, the order, the
+        weights and their sources.
     """
     import control as ct
 
@@ -508,6 +512,9 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELA
               "first_mode_hz": first,
               "closed_loop_least_damping_first_pair": None if first is None else least_damping_near(md, first),
               "closed_loop_modes": md}
+    if not reference_prefilter:
+        params["reference_prefilter"] = None
+        return BenchDesign("hinf", Kd, ny, TUNING_RULE, params)
     K2 = with_reference_prefilter(Kd)
     params.update({"controller_order": int(K2.nstates), "feedback_order": int(Kd.nstates),
                    "reference_prefilter": {"form": "F(s) = w^2 / (s^2 + 2 zeta w s + w^2) per axis, u = K (F r - y)",
