@@ -503,13 +503,13 @@ def _add_design_arguments(parser) -> None:
                         help="damping ratio the inner active-damping loop adds to the first mode "
                              f"(default {DEFAULT_DAMPING_ZETA}; 0 = no damping loop)")
     parser.add_argument("--paper-design", dest="paper_design", action="store_true",
-                        help="the paper's set-up: 10-state model, single H-infinity loop, no damping loop")
+                        help="export the paper's own design: 10-state model, single S/KS/T H-infinity loop, no "
+                             "damping loop, no design delay (architecture mixsyn with the paper's settings)")
     parser.add_argument("--architecture", choices=DESIGN_ARCHITECTURES, default=DEFAULT_ARCHITECTURE,
-                        help=f"exported controller (default {DEFAULT_ARCHITECTURE}, the bench's default by the "
-                             "scorecard rule; lqg-gain-range: the lqg with its disk margin over the piezo's whole gain "
-                             "range, slower steps; lqg-bandwidth: the fastest lqg its robustness checks accept; "
-                             "hinf: the H-infinity design of "
-                             "--weights/--reduced-order/--damping-zeta)")
+                        help=f"exported controller (default {DEFAULT_ARCHITECTURE}: the four-block H-infinity "
+                             "design, the paper's weights plus an input-disturbance channel, which damps the first "
+                             "mode pair); any bench member (lqg, paper, robust, ...); mixsyn: the S/KS/T design of "
+                             "--weights/--reduced-order/--damping-zeta, always made as the reference")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -555,7 +555,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "excites the 740 Hz mode)")
     i.add_argument("--mjcf", default=None, type=_file)
     i.set_defaults(func=_cmd_identify)
-    d = sub.add_parser("design", help="reduce the model and synthesize the H-infinity controller")
+    d = sub.add_parser("design", help="reduce the model and synthesize the controller (default: the four-block "
+                                      "H-infinity design; --architecture NAME for another, --paper-design the paper's)")
     d.add_argument("--model", required=True, type=_file,
                    help="model.npz from 'nanosim identify', or a MATLAB .mat state space A, B, C, D, Ts")
     d.add_argument("--out", required=True, type=out)

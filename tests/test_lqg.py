@@ -103,10 +103,11 @@ def test_lqg_on_the_identified_model_margin_bandwidth_and_dac_noise(model):
     assert np.abs(ctrl.step(np.zeros(3), y_home)).max() < 1e-9
 
 
-def test_design_config_exports_lqg_by_default_and_the_paper_design_stays_hinf():
+def test_design_config_exports_the_four_block_hinf_by_default_and_the_paper_design_is_mixsyn():
     from nanosim.pipeline.config import DesignConfig
-    assert DesignConfig().architecture == "lqg"
-    assert DesignConfig.paper().architecture == "hinf"
+    assert DesignConfig().architecture == "hinf"
+    assert DesignConfig.paper().architecture == "mixsyn"
+    assert DesignConfig(architecture="lqg").architecture == "lqg"
     with pytest.raises(ValueError, match="architecture"):
         DesignConfig(architecture="pid")
 

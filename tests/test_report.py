@@ -76,7 +76,7 @@ def test_controller_section_describes_the_exported_bench_design_not_the_hinf_ref
     assert "notches at 452 Hz (zeta 0.063 -> 0.7)" in text and "6 of the states" in text
     assert "H-infinity mixed-sensitivity" not in text
     des.pop("exported_controller")
-    des["architecture"] = "hinf"
+    des["architecture"] = "mixsyn"
     assert "H-infinity mixed-sensitivity" in architecture_section(des)
 
 

@@ -184,6 +184,8 @@ FIGURES: tuple[Artifact, ...] = (
     Artifact(FIG18_T_KS, "design", "Closed-loop design singular values, T and KS (Fig. 18 a-b)"),
     Artifact(FIG21_CLOSED_LOOP_BODE, "design", "Closed-loop Bode grid (Figs. 13, 21)"),
     Artifact(FIG22_CONTROLLER_BODE, "design", "Controller Bode grid (Fig. 22)"),
+    Artifact("reference_fig*.png", "design",
+             "The mixed-sensitivity reference design of the settings (--architecture mixsyn), not exported"),
     Artifact(FIG23_ROBUSTNESS_SIGMA, "design",
              "Robustness: singular values of S_o, S_i, T_o, T_i, KS, SG on the loop as run"),
     Artifact(FIG24_ROBUSTNESS_DISK_MARGINS, "design",

@@ -19,12 +19,12 @@ __all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConf
 
 # DEFAULT_REDUCED_ORDER, DEFAULT_DAMPING_ZETA, DEFAULT_DAMPING_LOWPASS_HZ: defined in nanosim.constants (the
 # design layer uses them too), re-exported here
-# the exported controller of `nanosim design` (#13, chosen by the bench's scorecard rule): "lqg" is the bench
-# design nanosim.design.architectures.lqg; "hinf" the H-infinity design these settings describe (the paper's
-# with --paper-design, else hinf-damped); "lqg-gain-range" the lqg with its disk margin held over the piezo's gain
-# range; "lqg-bandwidth" the fastest loop the lqg's robustness checks accept (a sweep's bandwidth rule)
-DESIGN_ARCHITECTURES = ("lqg", "hinf", "lqg-gain-range", "lqg-bandwidth")
-DEFAULT_ARCHITECTURE = "lqg"
+# the exported controller of `nanosim design`: every named design of nanosim.design.architectures.DESIGN_RULES
+# (tests/test_hinf_fourblock.py checks the list against it), "hinf" the four-block H-infinity design by default;
+# "mixsyn" the mixed-sensitivity design these settings describe (the paper's with --paper-design)
+DESIGN_ARCHITECTURES = ("hinf", "paper", "hinf-damped", "pi-notch", "damping-tracking", "robust", "feedforward",
+                        "lqg", "lqg-nominal", "lqg-gain-range", "lqg-bandwidth", "mixsyn")
+DEFAULT_ARCHITECTURE = "hinf"
 
 
 def _check_seed(seed) -> int:
@@ -100,11 +100,11 @@ class DesignConfig:
         to the identified model (:func:`nanosim.pipeline.design.model_loop_delay_samples`);
         0 = none (the paper).
     architecture : str
-        The exported controller: ``"lqg"`` (default, :mod:`nanosim.design.architectures.lqg`; the
-        H-infinity design is still made and described in ``design.json`` as the reference),
-        ``"lqg-gain-range"`` (the same with its disk margin required at both ends of the piezo's gain
-        range, ``gain_range_margin=True``), ``"lqg-bandwidth"`` (the robust lqg's checks on faster members, the
-        fastest accepted, ``seek_bandwidth=True``) or ``"hinf"`` (the H-infinity design itself).
+        The exported controller: ``"hinf"`` (default, the four-block H-infinity design,
+        :mod:`nanosim.design.architectures.hinf_fourblock`), any other member of
+        :data:`nanosim.design.architectures.DESIGN_RULES` (``"lqg"``, ``"paper"``, ...), or ``"mixsyn"``: the
+        mixed-sensitivity design of these settings (``reduced_order``, ``damping_zeta``, ``weights``), which is
+        always made and described in ``design.json`` as the reference (``--paper-design``: the paper's set-up).
     """
 
     reduced_order: int = DEFAULT_REDUCED_ORDER
@@ -138,7 +138,7 @@ class DesignConfig:
         """The paper's set-up: 10-state design model, single H-infinity loop, no damping loop, no delay,
         discretized by Tustin (the exact inverse of the design model's Tustin d2c).
         """
-        return replace(cls(reduced_order=PAPER_REDUCED_ORDER, damping_zeta=0.0, delay_samples=0, architecture="hinf",
+        return replace(cls(reduced_order=PAPER_REDUCED_ORDER, damping_zeta=0.0, delay_samples=0, architecture="mixsyn",
                            discretization="tustin_round_trip"), **overrides)
 
     @property

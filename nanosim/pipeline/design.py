@@ -47,7 +47,13 @@ from nanosim.design.lti import (
 )
 from nanosim.design.reduction import multiplicative_uncertainty, reduce_model
 from nanosim.design.loopresponse import delay_ss
-from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES, STAGE_UNCERTAINTY, LoopPlant, analyze_controller
+from nanosim.design.robustness import (
+    IDENTIFIED_DELAY_SAMPLES,
+    STAGE_UNCERTAINTY,
+    LoopPlant,
+    analyze_controller,
+    controller_systems,
+)
 from nanosim.design.weights import Weights
 from nanosim.paper import PAPER
 from nanosim.pipeline import artifacts as A
@@ -57,6 +63,7 @@ from nanosim.pipeline.timings import record_timings
 from nanosim.plots.design import (
     plot_closed_loop_bode,
     plot_controller_bode,
+    plot_exported_loops,
     plot_hankel,
     plot_reduction_bode,
     plot_sensitivity,
@@ -72,6 +79,9 @@ __all__ = ["run_design", "write_robustness", "twin_loop_plant", "model_loop_dela
 # Order of the Pade approximant of the loop's computation delay in the design model (per input):
 # exp(-s T) at T = 250 us to 0.2 deg at 500 Hz.
 DELAY_PADE_ORDER = 2
+
+# the reference (mixsyn) design's loop figures, when another controller is exported: this prefix + the registered name
+REFERENCE_FIGURE_PREFIX = "reference_"
 
 # the damping loop's discretization is checked over 0 .. this [Hz]
 DAMPING_LOOP_CHECK_BAND_HZ = 500.0
@@ -235,34 +245,47 @@ def write_robustness(out_dir, controller, plants: dict, *, uncertainty=STAGE_UNC
     return doc
 
 
-def _export_lqg(out: Path, G, dt: float, loop_delay: int, units, say,
-                architecture: str = "lqg") -> dict:
-    """Overwrite ``controller.npz`` with the LQG design ``architecture`` (``"lqg"``, ``"lqg-gain-range"`` or
-    ``"lqg-bandwidth"``, :mod:`nanosim.design.architectures.lqg`); the ``design.json`` entries that say so.
+def _export_bench(out: Path, G, dt: float, loop_delay: int, units, say, architecture: str) -> dict:
+    """Overwrite ``controller.npz`` with the bench design ``architecture``
+    (:data:`nanosim.design.architectures.DESIGN_RULES`); the ``design.json`` entries that describe it.
     """
     from nanosim.design.architectures import design
     bd = design(architecture, G, dt=dt, delay_samples=loop_delay)
     Akd, Bkd, Ckd, Dkd, _ = bd.matrices
-    lqg_units = np.array([*units[:2], "inputs [e; y]: e = r - y (n_error = 3 columns), then the measurement y in "
-                          "sensor volts", "u = Ckd x + Dkd [e; y], x[k+1] = Akd x[k] + Bkd [e; y] (discrete only)",
-                          "dt in seconds"])
-    fileio.write_npz(out / A.CONTROLLER_NPZ, Akd=Akd, Bkd=Bkd, Ckd=Ckd, Dkd=Dkd, dt=np.float64(dt),
-                     n_error=np.int64(bd.n_error), units=lqg_units, sign_convention=np.array(SIGN_CONVENTION),
-                     method=np.array("lqg"), tuning_rule=np.array(bd.tuning_rule))
-    write_controller_exports(out / A.CONTROLLER_NPZ, Akd, Bkd, Ckd, Dkd, dt, bd.n_error)
+    io = ("inputs [e; y]: e = r - y (n_error = 3 columns), then the measurement y in sensor volts" if bd.two_dof
+          else "input e = r - y (n_error = 3 columns) in sensor volts")
+    bench_units = np.array([*units[:2], io, "u = Ckd x + Dkd [e; y], x[k+1] = Akd x[k] + Bkd [e; y] (discrete only)",
+                            "dt in seconds"])
     p = bd.parameters
-    say(f"exported controller: {architecture} ({bd.K.nstates} states), predicted multiloop disk margin "
-        f"{p['predicted_disk_margin']['multiloop']:.3f} (at the top of the piezo's gain range "
-        f"{p['predicted_disk_margin_top_of_gain_range']['multiloop']:.3f}), S bandwidth "
-        f"{p['predicted_bandwidth_S_hz']:.1f} Hz")
-    default = ", the bench's default by the scorecard rule" if architecture == "lqg" else ""
-    return {"architecture": architecture,
+    extra = {} if p.get("gamma") is None else {"gamma": np.float64(p["gamma"])}
+    fileio.write_npz(out / A.CONTROLLER_NPZ, Akd=Akd, Bkd=Bkd, Ckd=Ckd, Dkd=Dkd, dt=np.float64(dt),
+                     n_error=np.int64(bd.n_error), units=bench_units, sign_convention=np.array(SIGN_CONVENTION),
+                     method=np.array(architecture), tuning_rule=np.array(bd.tuning_rule), **extra)
+    write_controller_exports(out / A.CONTROLLER_NPZ, Akd, Bkd, Ckd, Dkd, dt, bd.n_error)
+    dm = (p.get("predicted_disk_margin") or {}).get("multiloop")
+    say(f"exported controller: {architecture} ({bd.K.nstates} states)"
+        + ("" if p.get("gamma") is None else f", gamma {p['gamma']:.3f}")
+        + ("" if dm is None else f", predicted multiloop disk margin {dm:.3f}"))
+    return {"architecture": architecture, "controller_order": int(bd.K.nstates),
+            "gamma": None if p.get("gamma") is None else float(p["gamma"]),
+            "tuning_rule": bd.tuning_rule,
             "exported_controller": {"architecture": architecture, "tuning_rule": bd.tuning_rule,
                                     "controller_order": int(bd.K.nstates), "parameters": p},
-            "architecture_note": (f"controller.npz holds the {architecture} design (nanosim.design.architectures.lqg"
-                                  f"{default}); gamma, S/T peaks and bandwidths, "
-                                  "controller_order and the closed_loop_* entries describe the H-infinity "
-                                  "reference design of these settings (nanosim design --architecture hinf)")}
+            "architecture_note": (f"controller.npz holds the {architecture} design (nanosim.design.architectures; "
+                                  f"nanosim design --architecture NAME exports another bench member, --paper-design "
+                                  f"the paper's own); reference_design and the S/T peaks, bandwidths and closed_loop_* "
+                                  f"entries describe the mixed-sensitivity reference of these settings (--architecture "
+                                  f"mixsyn), whose figures are fig12, fig18, fig21 and fig22")}
+
+
+def _mode_damping(controller_npz, plants: dict) -> dict:
+    """Per plant as the loop runs it: each lightly damped mode's open-loop damping and the exported controller's
+    least closed-loop damping near it (:func:`nanosim.design.architectures.hinf_fourblock.mode_damping_table`).
+    """
+    from nanosim.design.architectures.hinf_fourblock import mode_damping_table
+    from nanosim.design.robustness import controller_systems
+    K, Ky = controller_systems(controller_npz)
+    return {k: mode_damping_table(p.G, K, delay_samples=p.delay_samples, Ky=Ky) for k, p in plants.items()}
 
 
 def _input_ref(path, out_dir) -> dict:
@@ -462,11 +485,15 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
         summary["versions"] = {"control": _c.__version__, "slycot": _s.__version__, "numpy": np.__version__}
     except Exception:  # pragma: no cover
         pass
-    if cfg.architecture != "hinf":
-        summary.update(_export_lqg(out, Gd_full if Gd_full is not None else G_full, dt, loop_delay, units, say,
-                                   cfg.architecture))
+    summary["reference_design"] = {"architecture": "mixsyn", "gamma": summary.get("gamma"),
+                                   "controller_order": summary.get("controller_order"),
+                                   "weights": W.to_dict()}
+    if cfg.architecture != "mixsyn":
+        summary.update(_export_bench(out, Gd_full if Gd_full is not None else G_full, dt, loop_delay, units, say,
+                                     cfg.architecture))
     else:
-        summary["architecture"] = "hinf"
+        summary.update({"architecture": "mixsyn", "tuning_rule": "mixed-sensitivity S/KS/T H-infinity of these "
+                        "settings (nanosim.design.hinf.design_hinf)"})
     fileio.write_json(out / A.DESIGN_JSON, summary)
     record_timings(out, {A.DESIGN_JSON: {"timings_s": timings}})
 
@@ -479,6 +506,8 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
     plants["identified"] = (LoopPlant.identified(Gd, delay_samples=loop_delay) if Gd is Gd_full
                             else LoopPlant.twin(Gd, label="full model"))
     write_robustness(out, out / A.CONTROLLER_NPZ, plants, figures=figures)
+    summary["closed_loop_mode_damping"] = _mode_damping(out / A.CONTROLLER_NPZ, plants)
+    fileio.write_json(out / A.DESIGN_JSON, summary)
     if not figures:
         say(f"done in {time.perf_counter() - t_start:.1f} s (no figures) -> {out}")
         return dataclasses.replace(d, reduction=red, discretization=disc)
@@ -488,12 +517,25 @@ def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=N
         A.FIG08_HANKEL_SV: plot_hankel(red),
         A.FIG09_REDUCTION_BODE: plot_reduction_bode(red),
         A.FIG10_UNCERTAINTY: plot_uncertainty(red),
-        A.FIG11B_WEIGHTS: plot_weights(W),
-        A.FIG12_SENSITIVITY: plot_sensitivity(d),
-        A.FIG18_T_KS: plot_T_KS(d),
-        A.FIG21_CLOSED_LOOP_BODE: plot_closed_loop_bode(d),
-        A.FIG22_CONTROLLER_BODE: plot_controller_bode(d, disc),
     }
+    loops = {A.FIG12_SENSITIVITY: plot_sensitivity(d), A.FIG18_T_KS: plot_T_KS(d),
+             A.FIG21_CLOSED_LOOP_BODE: plot_closed_loop_bode(d), A.FIG22_CONTROLLER_BODE: plot_controller_bode(d, disc)}
+    if cfg.architecture == "mixsyn":
+        figs.update({A.FIG11B_WEIGHTS: plot_weights(W), **loops})
+    else:
+        # the exported controller's loop figures under the registered names, the reference's under its own
+        for name, fig in loops.items():
+            fileio.save_figure(fig, out / f"{REFERENCE_FIGURE_PREFIX}{name}")
+        exp = summary["exported_controller"]
+        Ke, Ky = controller_systems(out / A.CONTROLLER_NPZ)
+        w = exp["parameters"].get("weights")
+        We = Weights.from_dict({k: w[k] for k in ("Wp", "Wt", "Wu")}) if w and all(k in w for k in ("Wp", "Wt", "Wu")) \
+            else None
+        ex = plot_exported_loops(cfg.architecture, Gd, Ke, Ky, delay_samples=loop_delay, weights=We,
+                                 gamma=exp["parameters"].get("gamma"))
+        figs.update({A.FIG11B_WEIGHTS: plot_weights(We if We is not None else W),
+                     A.FIG12_SENSITIVITY: ex["sensitivity"], A.FIG18_T_KS: ex["T_KS"],
+                     A.FIG21_CLOSED_LOOP_BODE: ex["closed_loop_bode"], A.FIG22_CONTROLLER_BODE: ex["controller_bode"]})
     for name, fig in figs.items():
         fileio.save_figure(fig, out / A.figure(name).name)
     say(f"done in {time.perf_counter() - t_start:.1f} s -> {out}")

@@ -153,7 +153,7 @@ def validation_rows(run) -> list[dict]:
 def is_paper_design(design: dict) -> bool:
     """Whether ``design.json`` describes the paper's set-up: 10-state model, single loop, no design delay."""
     return (design.get("reduced_order") == PAPER_REDUCED_ORDER and design.get("damping_loop") is None
-            and not design.get("design_delay_samples") and design.get("architecture") in (None, "paper", "hinf"))
+            and not design.get("design_delay_samples") and design.get("architecture") in (None, "paper", "mixsyn"))
 
 
 def seed_summary(run_dirs) -> dict:

@@ -297,7 +297,7 @@ def _twin_rows(run: Path):
 def exported_controller(des: dict) -> tuple[str, int | None]:
     """``(architecture, order)`` of the controller ``controller.npz`` holds, from ``design.json``."""
     e = des.get("exported_controller") or {}
-    return (e.get("architecture", des.get("architecture", "hinf")),
+    return (e.get("architecture", des.get("architecture", "mixsyn")),
             e.get("controller_order", des.get("controller_order")))
 
 
@@ -322,7 +322,7 @@ def architecture_section(des: dict) -> str | None:
     zt_hz = des.get("closed_loop_min_damping_twin_hz")
     ring = (f" Least-damped closed-loop pole with the linear twin (50 Hz - 1 kHz): zeta = {zt:.4f} at "
             f"{zt_hz:.0f} Hz." if zt is not None and zt_hz is not None else "")
-    if exported_controller(des)[0] != "hinf":
+    if exported_controller(des)[0] != "mixsyn":
         return _exported_text(des.get("exported_controller") or {}, des)
     if dl is None:
         text = (f"Controller: the paper's single H-infinity loop (paper weights, {order}-state design model, "
@@ -385,7 +385,7 @@ def _blocks(run: Path):
     out += _controllers_blocks(run, des)
     if des:
         exported = exported_controller(des)[0]
-        if exported != "hinf":
+        if exported != "mixsyn":
             out += [("h", 2, "Warnings"),
                     ("p", f"These concern the H-infinity reference design that design.json describes, not the "
                           f"exported `{exported}` controller (its loop is in \"Controllers\" and \"Robustness\").")]

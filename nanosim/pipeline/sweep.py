@@ -204,7 +204,7 @@ def design_for_point(model, config: DesignConfig | None = None, seed: int = 0) -
            "design_bandwidth_S_hz": des.get("bandwidth_S_hz"),
            "design_bandwidth_T_hz": des.get("bandwidth_T_hz"),
            "identification_fit_min_percent": float(np.min(ident.fit_percent)),
-           "architecture": des.get("architecture", "hinf")}
+           "architecture": des.get("architecture", "mixsyn")}
     exp = des.get("exported_controller")
     if exp:                 # an lqg design: its own predicted figures on the identified model
         p = exp["parameters"]
@@ -372,7 +372,7 @@ _RULE_NOTE = {"lqg": ", the bench's default: the robust lqg with the least predi
               "lqg-bandwidth": ": the robust lqg at the smallest control weight at which its pick meets every check, "
                                "so the bandwidth is the stage's and the checks', not fixed by the weights",
               "lqg-gain-range": ": the robust lqg with its disk margin over the piezo's gain range",
-              "hinf": ": the H-infinity design of the weights"}
+              "mixsyn": ": the H-infinity design of the weights"}
 
 
 def report_markdown(doc: dict, wall_seconds: float) -> str:
@@ -388,7 +388,7 @@ def report_markdown(doc: dict, wall_seconds: float) -> str:
              "relative differences below " + ", ".join(f"{v:.3g} ({k})" for k, v in doc["pareto_ties"].items()) +
              " are ties (for the measured ones, their spread over seeds 0-4 on the nominal stage).", "",
              f"![Pareto figure]({A.FIG_SWEEP_PARETO})", ""]
-    hinf = doc["design"]["architecture"] == "hinf"
+    hinf = doc["design"]["architecture"] == "mixsyn"
     extra = (("gamma", "gamma"),) if hinf else (("disk margin", "exported_disk_margin"), ("mu", "exported_mu_peak"),
                                                 ("R_u", "exported_control_weight"))
     lines += ["| # | point | first mode [Hz] | travel [um] | S bandwidth [Hz] | T bandwidth [Hz] | resolution [nm] | "

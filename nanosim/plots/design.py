@@ -17,7 +17,7 @@ from nanosim.design.weights import Weights
 from nanosim.plots.style import ACTUATOR_NAMES, AXIS_NAMES, bode_grid, channel_names, magnitude_db, new_figure
 
 __all__ = ["plot_hankel", "plot_reduction_bode", "plot_uncertainty", "plot_weights", "plot_sensitivity",
-           "plot_T_KS", "plot_closed_loop_bode", "plot_controller_bode"]
+           "plot_T_KS", "plot_closed_loop_bode", "plot_controller_bode", "plot_exported_loops"]
 
 
 def plot_hankel(red: Reduction):
@@ -275,3 +275,71 @@ def plot_controller_bode(d: Design, disc: Discretization | None = None, f=None):
     return bode_grid(f"Controller K ({d.controller_order} states): error -> command (cf. paper Fig. 22)", curves, f,
                       ylabel="|K| [dB, controller V/sensor V]", in_names=tuple(f"e{x}" for x in on),
                       out_names=tuple(f"u{x}" for x in inn), vlines=(500.0,))
+
+
+def plot_exported_loops(name: str, Gd, Ke, Ky=None, *, delay_samples: int = 0, weights: Weights | None = None,
+                        gamma: float | None = None, f=None) -> dict:
+    """The design figures of a discrete exported controller on the identified model (paper Figs. 12, 18, 21, 22).
+
+    Parameters
+    ----------
+    name : str
+        Architecture (titles).
+    Gd : control.StateSpace
+        Identified discrete model (the loop as run, with ``delay_samples``).
+    Ke, Ky : control.StateSpace
+        Discrete error and measurement parts of ``u = Ke e + Ky y`` (``Ky`` None: one degree of freedom).
+    delay_samples : int
+        Loop delay beyond ``Gd``.
+    weights : Weights or None
+        Bounds ``1/|Wp|``, ``1/|Wt|``, ``1/|Wu|`` drawn with ``gamma`` (None: none, a design without them).
+    gamma : float or None
+    f : ndarray, optional
+        Frequencies [Hz]; default 0.1 Hz to 0.999 x Nyquist, densified at the modes.
+
+    Returns
+    -------
+    dict
+        ``{"sensitivity", "T_KS", "closed_loop_bode", "controller_bode"}`` -> Figure.
+    """
+    from nanosim.design.architectures.common import distinct_modes_hz, freqresp_z, loop_response
+    from nanosim.design.architectures.common import analysis_grid_hz as grid_z
+    f = grid_z(float(Gd.dt), 900, distinct_modes_hz(Gd)) if f is None else np.asarray(f, float)
+    r = loop_response(freqresp_z(Gd, f), f, Ke, Ky, delay_samples=delay_samples, dt=float(Gd.dt))
+    g = 1.0 if gamma is None else float(gamma)
+
+    def sv(H):
+        return np.linalg.svd(H, compute_uv=False)
+
+    w = weights if weights is not None else None
+    S_pk = float(sv(r.S_o)[:, 0].max())
+    fig_s, axs = new_figure(1, 1, size=(7, 4.8))
+    _sv_panel(axs[0, 0], f, sv(r.S_o), None if w is None else w.Wp, g, "S", "Wp")
+    axs[0, 0].axhline(magnitude_db(INV_SQRT2), color="gray", lw=0.8, ls="-.", label="-3 dB")
+    axs[0, 0].set_ylim(-100, 20)
+    axs[0, 0].set_ylabel("singular values of S [dB]")
+    axs[0, 0].legend(fontsize=8, loc="lower right")
+    axs[0, 0].set_title(f"identified model, loop as run: ||S||inf = {S_pk:.3f}", fontsize=10)
+    fig_s.suptitle(f"Sensitivity S of the exported {name} controller (cf. paper Fig. 12)")
+    fig_t, axt = new_figure(1, 2, size=(13, 4.8))
+    _sv_panel(axt[0, 0], f, sv(r.T_ry), None if w is None else w.Wt, g, "T", "Wt")
+    axt[0, 0].set_ylim(-100, 30)
+    axt[0, 0].set_ylabel("singular values of T [dB]")
+    _sv_panel(axt[0, 1], f, sv(r.KS), None if w is None else w.Wu, g, "KS", "Wu")
+    axt[0, 1].set_ylabel("singular values of KS [dB, controller V / sensor V]")
+    for ax in axt[0]:
+        ax.legend(fontsize=8, loc="lower left")
+    fig_t.suptitle(f"T (reference -> output) and KS of the exported {name} controller (cf. paper Figs. 11b, 18)")
+    on = channel_names(Gd.noutputs, AXIS_NAMES)
+    inn = channel_names(Gd.ninputs, ACTUATOR_NAMES)
+    fig_cl = bode_grid(f"Closed loop T of the exported {name} controller: reference -> output (cf. paper Figs. 13, "
+                       "21)", [("identified model", r.T_ry, dict(color="tab:blue", lw=1.2))], f, ylabel="|T| [dB]",
+                       in_names=tuple(f"r{x}" for x in on), out_names=on, ylim=(-100, 10))
+    curves = [("error part K (e -> u)", freqresp_z(Ke, f), dict(color="tab:blue", lw=1.2))]
+    if Ky is not None:
+        curves.append(("measurement part Ky (y -> u)", freqresp_z(Ky, f), dict(color="tab:green", lw=1.0)))
+    order = Ke.nstates
+    fig_k = bode_grid(f"Exported {name} controller ({order} states, {1 / float(Gd.dt):.0f} Hz): error -> command "
+                      "(cf. paper Fig. 22)", curves, f, ylabel="|K| [dB, controller V/sensor V]",
+                      in_names=tuple(f"e{x}" for x in on), out_names=tuple(f"u{x}" for x in inn), vlines=(500.0,))
+    return {"sensitivity": fig_s, "T_KS": fig_t, "closed_loop_bode": fig_cl, "controller_bode": fig_k}

@@ -3,6 +3,8 @@
 ``design_X(G, *, dt=250e-6, delay_samples=0, ...) -> BenchDesign`` (a discrete
 ``Akd, Bkd, Ckd, Dkd, dt, n_error`` controller with its tuning rule), for
 
+* ``hinf`` (:mod:`.hinf_fourblock`) -- four-block H-infinity (S, SG, KS, T): the paper's weights plus an
+  input-disturbance channel, so the optimum damps the first pair (the exported default);
 * ``paper`` (:mod:`.paper`) -- the paper's 10-state single-loop H-infinity design;
 * ``hinf-damped`` (:mod:`.hinf_damped`) -- H-infinity around an inner damping loop, delay-aware;
 * ``pi-notch`` (:mod:`.pi_notch`) -- decoupled PI with notches (the industry baseline);
@@ -34,6 +36,11 @@ __all__ = ["BENCH", "DESIGN_RULES", "BenchDesign", "design", "design_bench", "DT
 def _paper(G, **kw):
     from nanosim.design.architectures.paper import design_paper
     return design_paper(G, **kw)
+
+
+def _hinf(G, **kw):
+    from nanosim.design.architectures.hinf_fourblock import design_hinf_fourblock
+    return design_hinf_fourblock(G, **kw)
 
 
 def _hinf_damped(G, **kw):
@@ -87,6 +94,7 @@ def _feedforward(G, **kw):
 
 # name -> design function, in scorecard order
 BENCH: dict[str, Callable[..., BenchDesign]] = {
+    "hinf": _hinf,
     "paper": _paper,
     "hinf-damped": _hinf_damped,
     "pi-notch": _pi_notch,

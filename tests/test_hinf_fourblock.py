@@ -1,0 +1,149 @@
+"""The four-block H-infinity design (S, SG, KS, T) and its export as the default controller."""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ct = pytest.importorskip("control")
+pytest.importorskip("slycot")
+
+from nanosim import constants  # noqa: E402
+from nanosim.design.architectures import DESIGN_RULES, design  # noqa: E402
+from nanosim.design.architectures.common import closed_loop_spectral_radius, dc_gain_z  # noqa: E402
+from nanosim.design.architectures.hinf_fourblock import (  # noqa: E402
+    HYSTERESIS_FRACTION,
+    REFERENCE_STEP_UM,
+    RESONANT_PEAK,
+    disturbance_weight,
+    fourblock_plant,
+    input_noise_V,
+    least_damping_near,
+    mode_damping,
+)
+from nanosim.design.lti import freqresp, load_state_space_npz  # noqa: E402
+from nanosim.design.weights import Weights  # noqa: E402
+
+MODEL = Path(__file__).parent / "data" / "identified_seed0.npz"
+FIRST_PAIR_HZ = 175.5          # the identified model's first mode (tests/data/identified_seed0.npz)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_state_space_npz(MODEL)[1]
+
+
+@pytest.fixture(scope="module")
+def fourblock(model):
+    return design("hinf", model)
+
+
+def test_architecture_names_are_the_design_rules_and_the_reference():
+    from nanosim.pipeline.config import DEFAULT_ARCHITECTURE, DESIGN_ARCHITECTURES
+    assert set(DESIGN_ARCHITECTURES) == set(DESIGN_RULES) | {"mixsyn"}
+    assert DEFAULT_ARCHITECTURE == "hinf"
+
+
+def test_disturbance_weight_levels_come_from_the_hysteresis_and_the_noise_budget():
+    G0 = np.diag([1.2, 0.8, 2.0])
+    Wd, parts = disturbance_weight(G0, 250e-6)
+    assert Wd.ninputs == Wd.noutputs == 3
+    low = abs(freqresp(Wd, np.array([1e-3]))[0, 0, 0])
+    assert low == pytest.approx(HYSTERESIS_FRACTION / 0.8 + parts["floor_level"], rel=1e-3)
+    floor = input_noise_V() / (REFERENCE_STEP_UM / constants.SENSOR_UM_PER_V)
+    assert parts["floor_level"] == pytest.approx(floor, rel=1e-12)
+    assert input_noise_V() == pytest.approx(math.hypot(constants.DAC_WHITE_NOISE_V, constants.AMPLIFIER_NOISE_V))
+    # one pole at 32 Hz: at 320 Hz the hysteresis part is 1/10 of its level (Nyquist filter ~1 there)
+    mid = abs(freqresp(Wd, np.array([320.0]))[0, 1, 1])
+    assert mid == pytest.approx(HYSTERESIS_FRACTION / 0.8 / math.hypot(1, 10) + floor, rel=0.03)
+    # the second-order Butterworth at Nyquist: -3 dB at 2 kHz relative to the flat part
+    assert abs(freqresp(Wd, np.array([20e3]))[0, 2, 2]) < 0.02 * mid
+    with pytest.raises(ValueError, match="bandwidth_hz"):
+        disturbance_weight(G0, bandwidth_hz=-1.0)
+
+
+def test_generalized_plant_blocks_are_the_four_block_problem():
+    """With the loop open (u = 0): z = [Wp (r - G Wd d); 0; Wt G Wd d], v = r - G Wd d."""
+    G = ct.ss(ct.tf([[[2.0], [0.0]], [[0.0], [1.0]]], [[[1, 30, 400], [1]], [[1], [1, 20, 900]]]))
+    W = Weights()
+    Wd, _ = disturbance_weight(dc_gain_z(G), 250e-6)
+    P = fourblock_plant(G, W, Wd)
+    assert (P.ninputs, P.noutputs) == (6, 8)
+    f = np.array([3.0, 40.0])
+    Pf, Gf, Wdf = freqresp(P, f), freqresp(G, f), freqresp(Wd, f)
+    wp, wt = W.Wp.freqresp(f), W.Wt.freqresp(f)
+    for k in range(f.size):
+        GWd = Gf[k] @ Wdf[k]
+        np.testing.assert_allclose(Pf[k, 0:2, 0:2], wp[k] * np.eye(2), rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(Pf[k, 0:2, 2:4], -wp[k] * GWd, rtol=1e-7, atol=1e-6)
+        np.testing.assert_allclose(Pf[k, 4:6, 2:4], wt[k] * GWd, rtol=1e-7, atol=1e-6)
+        np.testing.assert_allclose(Pf[k, 6:8, 2:4], -GWd, rtol=1e-7, atol=1e-6)
+        np.testing.assert_allclose(Pf[k, 2:4, 4:6], 0.15 * np.eye(2), rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="weights.Wt"):
+        fourblock_plant(G, Weights(Wt=None), Wd)
+
+
+def test_four_block_design_is_stable_with_finite_gamma_and_damps_the_first_pair(model, fourblock):
+    p = fourblock.parameters
+    assert math.isfinite(p["gamma"]) and p["gamma"] >= p["gamma_min"] > 0
+    assert p["gamma_grid_check"] <= 1.05 * p["gamma"]
+    assert p["controller_order"] == fourblock.K.nstates == p["feedback_order"] + 6
+    Ke, Ky = fourblock.split()
+    assert closed_loop_spectral_radius(model, Ke, Ky) < 1.0
+    # the first pair: the paper's S/KS/T optimum leaves it at (near) open-loop damping, the four-block one damps it
+    open_loop = min(z for f, z in __import__("nanosim.design.architectures.common", fromlist=["x"])
+                    .lightly_damped_modes(model) if abs(f / FIRST_PAIR_HZ - 1) < 0.05)
+    paper = design("paper", model)
+    z_paper = least_damping_near(mode_damping(model, paper.K, min_peak=RESONANT_PEAK), FIRST_PAIR_HZ)
+    z_four = p["closed_loop_least_damping_first_pair"]
+    assert z_paper is not None and z_paper < 2 * open_loop
+    assert z_four is not None and z_four >= 0.02 and z_four > 5 * z_paper
+
+
+def test_reference_prefilter_leaves_the_feedback_and_shapes_the_reference():
+    """u = K (F r - y) with K = I: the error path is F (Tustin, prewarped at 59 Hz), the feedback part is I."""
+    import control as ct
+
+    from nanosim.design.architectures.common import freqresp_z
+    from nanosim.design.architectures.hinf_fourblock import with_reference_prefilter
+    f = np.array([5.0, 59.0, 300.0])
+    K1 = ct.ss(np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((3, 0)), np.eye(3), 250e-6)
+    K2 = with_reference_prefilter(K1)
+    Fe = freqresp_z(ct.ss(K2.A, K2.B[:, :3], K2.C, K2.D[:, :3], 250e-6), f)
+    w = 2 * np.pi * 59.0
+    s = 1j * (2 / 250e-6) * np.tan(np.pi * f * 250e-6) * (w / ((2 / 250e-6) * np.tan(w * 250e-6 / 2)))
+    Fa = w * w / (s * s + 2 * w * s + w * w)
+    np.testing.assert_allclose(Fe[:, 0, 0], Fa, rtol=1e-9)
+    assert abs(Fa[1]) == pytest.approx(0.5, rel=1e-6)            # critically damped: -6 dB at its corner
+    Fy = freqresp_z(ct.ss(K2.A, K2.B[:, 3:], K2.C, K2.D[:, 3:], 250e-6), f)
+    np.testing.assert_allclose(Fe - Fy, np.broadcast_to(np.eye(3), Fe.shape), atol=1e-12)
+
+
+@pytest.mark.slow
+def test_default_export_is_the_four_block_design(tmp_path):
+    from nanosim.pipeline.design import run_design
+    out = tmp_path / "design"
+    run_design(MODEL, out, figures=False)
+    des = json.loads((out / "design.json").read_text())
+    z = np.load(out / "controller.npz")
+    assert des["architecture"] == "hinf" and des["exported_controller"]["architecture"] == "hinf"
+    assert z["Akd"].shape[0] == des["controller_order"] == des["exported_controller"]["controller_order"]
+    assert des["gamma"] == pytest.approx(float(z["gamma"]))
+    assert des["reference_design"]["architecture"] == "mixsyn"
+    assert "Wd" in des["exported_controller"]["parameters"]["weights"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(DESIGN_RULES))
+def test_every_architecture_exports_consistent_files(tmp_path, model, name):
+    """The export step of ``nanosim design --architecture NAME``: controller.npz's states are design.json's order."""
+    from nanosim.pipeline.design import _export_bench
+    units = np.array(["e: tracking error", "u: controller volts"])
+    entries = _export_bench(tmp_path, model, float(model.dt), 0, units, lambda msg: None, name)
+    z = np.load(tmp_path / "controller.npz")
+    assert entries["architecture"] == name == entries["exported_controller"]["architecture"]
+    assert z["Akd"].shape[0] == entries["controller_order"] == entries["exported_controller"]["controller_order"]
+    assert int(z["n_error"]) == 3 and z["Bkd"].shape[1] in (3, 6)
+    if entries["gamma"] is not None:
+        assert float(z["gamma"]) == pytest.approx(entries["gamma"]) and math.isfinite(entries["gamma"])
