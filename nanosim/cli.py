@@ -6,17 +6,19 @@ of defaults) -> pipeline steps. Every user error prints one line and exits 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
 import os
+import signal
 import sys
 import threading
 import time
 from pathlib import Path
 
 from nanosim import __version__
-from nanosim.validation import named_message
+from nanosim.validation import Terminated, named_message
 from nanosim import constants as C
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import (DEFAULT_ARCHITECTURE, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER,
@@ -566,31 +568,65 @@ def _options(parser: argparse.ArgumentParser, command: str) -> set:
     return set()
 
 
+#: Exit status of a command stopped by SIGINT (Ctrl-C) and by SIGTERM: 128 + the signal's number.
+EXIT_SIGINT, EXIT_SIGTERM = 128 + 2, 128 + 15
+
+
+@contextlib.contextmanager
+def _stop_signals():
+    """SIGINT and SIGTERM raise :class:`KeyboardInterrupt` / :class:`Terminated` in the main thread, once.
+
+    The first signal starts the clean-up that Ctrl-C runs (workers stopped, the staging folder and the
+    lock removed); a second one arriving during that clean-up is ignored so that it can finish.
+    The previous handlers are restored on leaving (``main`` may be called in a test's process).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    stopping = []
+
+    def handler(signum, _frame):
+        if stopping:
+            return
+        stopping.append(signum)
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
+
+
 def main(argv=None) -> int:
-    """Entry point; returns the exit status (0 ok, 2 user error, 130 interrupted)."""
+    """Entry point; returns the exit status (0 ok, 2 user error, 130 SIGINT, 143 SIGTERM)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     prog = f"nanosim {args.command}"
-    try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        kept = ("every finished sample is kept; a rerun resumes it" if args.command == "montecarlo"
-                else "the run folder was left as it was before this command")
-        print(f"{prog}: interrupted; {kept}", file=sys.stderr)
-        if threading.active_count() > 1:    # experiment threads may be inside MuJoCo: finalizing under them crashes
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(130)
-        return 130
-    except (ValueError, OSError) as exc:        # user errors, file-system errors included
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
-            msg = f"{msg}: {exc.filename}"
-        field, sep, rest = msg.partition(": ")                  # a config field's error names its option
-        if sep and field.isidentifier() and f"--{field.replace('_', '-')}" in _options(parser, args.command):
-            msg = f"--{field.replace('_', '-')}: {rest}"
-        print(f"{prog}: error: {msg}", file=sys.stderr)
-        return 2
+    with _stop_signals():
+        try:
+            return int(args.func(args) or 0)
+        except KeyboardInterrupt as exc:
+            term = isinstance(exc, Terminated)
+            kept = ("every finished sample is kept; a rerun resumes it" if args.command == "montecarlo"
+                    else "the run folder was left as it was before this command")
+            print(f"{prog}: {'terminated (SIGTERM)' if term else 'interrupted'}; {kept}", file=sys.stderr)
+            status = EXIT_SIGTERM if term else EXIT_SIGINT
+            if threading.active_count() > 1:    # experiment threads may be inside MuJoCo: finalizing under them crashes
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(status)
+            return status
+        except (ValueError, OSError) as exc:        # user errors, file-system errors included
+            msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
+                msg = f"{msg}: {exc.filename}"
+            field, sep, rest = msg.partition(": ")                  # a config field's error names its option
+            if sep and field.isidentifier() and f"--{field.replace('_', '-')}" in _options(parser, args.command):
+                msg = f"--{field.replace('_', '-')}: {rest}"
+            print(f"{prog}: error: {msg}", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":

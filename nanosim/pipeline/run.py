@@ -10,7 +10,6 @@ import dataclasses
 import gc
 import multiprocessing
 import os
-import signal
 import sys
 import threading
 import time
@@ -88,11 +87,6 @@ def step_report(out: Path) -> None:
 
 
 PIPELINE_STEPS = ("modes", "identify", "design", "characterize", "characterize_twin", "report")
-
-
-def _ignore_sigint() -> None:
-    """Pool initializer: Ctrl-C goes to the main process, which stops the worker (no traceback from it)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _daemon_map(fn, items, workers: int):
@@ -221,8 +215,12 @@ def file_digest(path) -> str:
 
 
 def spawn_pool(workers: int):
-    """A ``spawn`` process pool whose workers leave Ctrl-C to the main process."""
-    return multiprocessing.get_context("spawn").Pool(max(1, workers), initializer=_ignore_sigint)
+    """A ``spawn`` process pool whose workers leave Ctrl-C to the main process and end with it
+    (:func:`nanosim.pipeline.workers.worker_init`).
+    """
+    from nanosim.pipeline.workers import worker_init
+
+    return multiprocessing.get_context("spawn").Pool(max(1, workers), initializer=worker_init)
 
 
 def stop_pool(pool) -> None:
@@ -312,7 +310,9 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     # one worker more than cores: the design's analysis and figures (after controller.npz is final)
     # run beside the first experiments on the other workers
     pool = spawn_pool(cores + 1 if cores > 1 else 1)
-    manager = multiprocessing.get_context("spawn").Manager()
+    from nanosim.pipeline.workers import start_manager
+
+    manager = start_manager(multiprocessing.get_context("spawn"))
     try:
         ready = manager.Event()
         jobs = {"modes": pool.apply_async(modes_task, (str(out), mj))}

@@ -30,6 +30,8 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
+from nanosim.pipeline.workers import start_manager, terminate_executor, worker_init
+
 __all__ = ["ScaleOut", "open_executor", "run_tasks", "cpu_workers", "check_scheduler"]
 
 
@@ -174,11 +176,13 @@ def open_executor(scheduler: str | None = None, workers: int | None = None):
             yield ScaleOut(_InlineExecutor(), _QueueChannel(queue.Queue()), "this process", 1)
             return
         ctx = multiprocessing.get_context("spawn")
-        with ctx.Manager() as manager, ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+        # workers and the manager ignore SIGINT and leave when this process dies (nanosim.pipeline.workers)
+        with start_manager(ctx) as manager, ProcessPoolExecutor(max_workers=n, mp_context=ctx,
+                                                                initializer=worker_init) as pool:
             try:
                 yield ScaleOut(pool, _QueueChannel(manager.Queue()), f"local process pool ({n} workers)", n)
             except BaseException:
-                pool.shutdown(wait=False, cancel_futures=True)
+                terminate_executor(pool)        # Ctrl-C, SIGTERM or a failed task: the running tasks too
                 raise
         return
     check_scheduler(scheduler)
@@ -202,8 +206,13 @@ def open_executor(scheduler: str | None = None, workers: int | None = None):
                 raise ValueError(f"--scheduler: cannot use the address {scheduler!r} ({exc})") from None
             n = max(1, len(client.scheduler_info().get("workers", {})))
             where = f"Dask scheduler {scheduler} ({n} workers)"
+        executor = client.get_executor(pure=False)
         try:
-            yield ScaleOut(client.get_executor(pure=False), _DaskChannel(client), where, n)
+            yield ScaleOut(executor, _DaskChannel(client), where, n)
+        except BaseException:
+            with contextlib.suppress(Exception):        # Ctrl-C, SIGTERM, a failed task: cancel on the cluster
+                executor.shutdown(wait=False)
+            raise
         finally:
             client.close()
     finally:
