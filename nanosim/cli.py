@@ -6,12 +6,10 @@ of defaults) -> pipeline steps. Every user error prints one line and exits 2.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import json
 import math
 import os
-import signal
 import sys
 import threading
 import time
@@ -21,6 +19,7 @@ from nanosim import __version__
 from nanosim.validation import Terminated, named_message
 from nanosim import constants as C
 from nanosim.pipeline import artifacts as A
+from nanosim.pipeline.workers import stop_signals
 from nanosim.pipeline.config import (DEFAULT_ARCHITECTURE, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER,
                                      DESIGN_ARCHITECTURES, CharacterizeConfig, CompareConfig, DesignConfig,
                                      IdentifyConfig, MonteCarloConfig, PipelineConfig)
@@ -128,16 +127,32 @@ def _check_mjcf(args) -> None:
         _load_mjcf(args.mjcf)
 
 
-def _check_controller(path) -> Path:
-    """``--controller``: matches its sealed run folder (if any), a controller .npz at the loop's period."""
-    from nanosim.design.controller import DiscreteController
+def _check_controller(path, mjcf=None) -> Path:
+    """``--controller``: matches its sealed run folder (if any), a controller file at the loop's period
+    (:func:`~nanosim.design.architectures.protocol.read_controller_file`), and it stabilizes the stage.
+
+    Stability is checked before any simulation: the discrete closed loop of the controller and the
+    linear twin of the stage as the loop runs it (MuJoCo's linearization of the ideal stage, the
+    bench electronics, the one-sample computation delay) must have every pole inside the unit circle.
+    """
+    import numpy as np
+
+    from nanosim.design.architectures.protocol import read_controller_file
+    from nanosim.design.robustness import closed_loop_poles, controller_systems
+    from nanosim.pipeline.design import twin_loop_plant
     from nanosim.pipeline.runfolder import verify_input_file
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.stage import Stage, StageConfig
 
     p = verify_input_file(path, "--controller").resolve()       # a sealed run's controller must match it
-    try:
-        DiscreteController.from_npz(p, expected_dt=C.CONTROL_PERIOD_S)
-    except (OSError, ValueError) as exc:
-        raise ValueError(named_message("--controller", exc)) from None
+    cfg = read_controller_file(p, dt=C.CONTROL_PERIOD_S, name="--controller")
+    plant = twin_loop_plant(linearize(Stage(config=StageConfig.ideal(), model=_load_mjcf(mjcf))).sysd_V)
+    K, Ky = controller_systems(cfg)
+    poles = closed_loop_poles(plant.G, K, Ky, plant.delay_samples)
+    rho = float(np.max(np.abs(poles))) if poles.size else 0.0
+    if not rho < 1.0:
+        raise ValueError(f"--controller: {str(path)!r} does not stabilize the stage: a closed-loop pole at "
+                         f"|z| = {rho:.4g} >= 1 with the linear twin (the loop as run); refused before the simulation")
     return p
 
 
@@ -260,8 +275,8 @@ def _cmd_characterize(args) -> int:
     known = experiments.load_builtin()
     if args.only is not None and args.only not in known:
         raise ValueError(f"--only: expected one of {', '.join(known)}, got {args.only!r}")
-    controller = _check_controller(args.controller)         # validate before any work
     _check_mjcf(args)
+    controller = _check_controller(args.controller, args.mjcf)         # validate before any work
     cfg = CharacterizeConfig(seed=args.seed, only=args.only, twin=args.twin)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
@@ -275,8 +290,12 @@ def _cmd_pipeline(args) -> int:
     from nanosim.pipeline.run import run_pipeline
     from nanosim.pipeline.runfolder import staged_run
 
-    cfg = PipelineConfig(seed=args.seed, mjcf=args.mjcf,
-                         identify=IdentifyConfig(seed=args.seed, bands_hz=_bands_hz(args)), design=_design_config(args))
+    if args.seeds is not None and args.seed is not None:
+        raise ValueError(f"--seed: expected either --seed or --seeds, got --seed {args.seed} and --seeds "
+                         f"{','.join(map(str, args.seeds))}")
+    seed = 0 if args.seed is None else args.seed
+    cfg = PipelineConfig(seed=seed, mjcf=args.mjcf,
+                         identify=IdentifyConfig(seed=seed, bands_hz=_bands_hz(args)), design=_design_config(args))
     _check_mjcf(args)
     t0 = time.perf_counter()
     if args.seeds is not None:                  # several seeds, batched (nanosim.pipeline.seeds); parsed by its type
@@ -290,7 +309,7 @@ def _cmd_pipeline(args) -> int:
               f"their bands: mean {doc['in_band_mean']:.1f}, worst seed {doc['in_band_worst']} of {doc['banded']}; "
               f"report: {Path(args.out) / A.REPORT_MD}")
         return 0
-    with staged_run(args.out, seed=args.seed) as stage:
+    with staged_run(args.out, seed=seed) as stage:
         run_pipeline(stage, cfg)
         n_ok, n_band = pass_count(stage)
     report = Path(args.out) / A.REPORT_HTML
@@ -340,8 +359,9 @@ def _cmd_montecarlo(args) -> int:
     from nanosim.pipeline.mc_stats import CROSSCHECK_REL_TOL, load_spec
     from nanosim.pipeline.montecarlo import run_montecarlo
 
+    _check_mjcf(args)
     for c in args.controller:
-        _check_controller(c)                    # validate before any work (--scheduler's form: its type)
+        _check_controller(c, args.mjcf)         # validate before any work (--scheduler's form: its type)
     if len(args.controller) > 1:
         from nanosim.pipeline.mc_bench import controller_names
         controller_names(args.controller)
@@ -483,7 +503,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=_cmd_characterize)
     pl = sub.add_parser("pipeline", help="run the whole chain on the bundled stage")
     pl.add_argument("--out", required=True, type=out, help="run folder for artifacts")
-    pl.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
+    pl.add_argument("--seed", type=_int_at_least(0), default=None, help=f"{seed_help}; default 0")
     pl.add_argument("--seeds", default=None, type=_seeds(sort=True), metavar="0-4",
                     help=f"several seeds (a range or a list, at most {MAX_SEEDS}), batched; one folder per seed and a "
                          "summary report")
@@ -572,39 +592,12 @@ def _options(parser: argparse.ArgumentParser, command: str) -> set:
 EXIT_SIGINT, EXIT_SIGTERM = 128 + 2, 128 + 15
 
 
-@contextlib.contextmanager
-def _stop_signals():
-    """SIGINT and SIGTERM raise :class:`KeyboardInterrupt` / :class:`Terminated` in the main thread, once.
-
-    The first signal starts the clean-up that Ctrl-C runs (workers stopped, the staging folder and the
-    lock removed); a second one arriving during that clean-up is ignored so that it can finish.
-    The previous handlers are restored on leaving (``main`` may be called in a test's process).
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    stopping = []
-
-    def handler(signum, _frame):
-        if stopping:
-            return
-        stopping.append(signum)
-        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
-
-    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h if h is not None else signal.SIG_DFL)
-
-
 def main(argv=None) -> int:
     """Entry point; returns the exit status (0 ok, 2 user error, 130 SIGINT, 143 SIGTERM)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     prog = f"nanosim {args.command}"
-    with _stop_signals():
+    with stop_signals():
         try:
             return int(args.func(args) or 0)
         except KeyboardInterrupt as exc:

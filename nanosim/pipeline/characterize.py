@@ -13,6 +13,7 @@ from pathlib import Path
 from nanosim import constants as C
 from nanosim import experiments
 from nanosim.design.controller import DiscreteController
+from nanosim.design.architectures.protocol import read_controller_file
 from nanosim.experiments.registry import ExperimentContext
 from nanosim.fileio import save_figure, write_json
 from nanosim.pipeline import artifacts as A
@@ -115,7 +116,7 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
     unknown = [n for n in names if n not in known]
     if unknown:
         raise ValueError(f"only: unknown experiment {unknown[0]!r}; expected one of {list(known)}")
-    ctrl = DiscreteController.from_npz(controller_path, expected_dt=C.CONTROL_PERIOD_S)
+    ctrl = DiscreteController(read_controller_file(controller_path, dt=C.CONTROL_PERIOD_S))
     factory, base = make_factory(cfg.twin, mjcf=mjcf)
     G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
     metrics: dict = {}
@@ -194,7 +195,7 @@ def experiment_task(controller_npz, out_dir, name: str, seed: int, mjcf=None, tw
     t0 = time.perf_counter()
     experiments.load_builtin()
     exp = experiments.get(name)
-    ctrl = DiscreteController.from_npz(controller_npz, expected_dt=C.CONTROL_PERIOD_S)
+    ctrl = DiscreteController(read_controller_file(controller_npz, dt=C.CONTROL_PERIOD_S))
     factory, base, G0, plant = _member_setup(bool(twin), None if mjcf is None else str(mjcf))
     (met,), (res,) = run_experiments_batch([name], [plant], ctrl.config, engine="twin" if twin else "mujoco",
                                            seed=seed, exact=True, nthread=1)

@@ -218,9 +218,9 @@ def _sample_path(out: Path, sub: str, i: int) -> Path:
 
 
 def _plan(controller_path: Path, s: MonteCarloConfig, names, tm_dict) -> dict:
-    from nanosim.design.controller import DiscreteController
+    from nanosim.design.architectures.protocol import read_controller_file
 
-    c = DiscreteController.from_npz(controller_path).config
+    c = read_controller_file(controller_path, name="--controller")
     mjcf_sha = sha256_file(Path(s.mjcf)) if s.mjcf else "bundled"
     ident = {"seed": s.seed, "controller_sha256": sha256_file(controller_path), "mjcf": mjcf_sha,
              "experiments": list(names), "tolerances_sha256": hashlib.sha256(

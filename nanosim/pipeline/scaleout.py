@@ -30,7 +30,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
-from nanosim.pipeline.workers import start_manager, terminate_executor, worker_init
+from nanosim.pipeline.workers import start_manager, stop_deferred, terminate_executor, worker_init
 
 __all__ = ["ScaleOut", "open_executor", "run_tasks", "cpu_workers", "check_scheduler"]
 
@@ -237,8 +237,10 @@ def run_tasks(scale: ScaleOut, fn: Callable, tasks: Iterable[tuple], on_result: 
         sink = _BarSink(bar)                # tasks run inside submit: update the bar as they report
     futures = {}
     try:
+        inline = isinstance(scale.executor, _InlineExecutor)
         for task in tasks:
-            futures[scale.executor.submit(fn, *task, sink)] = task
+            with contextlib.nullcontext() if inline else stop_deferred():   # a local pool starts a worker in submit
+                futures[scale.executor.submit(fn, *task, sink)] = task
         pending = set(futures)
         while pending:
             done, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)

@@ -16,15 +16,24 @@ processes with :func:`worker_init`:
 
 The multiprocessing resource tracker leaves by itself once the last process holding
 its pipe is gone, so it follows the workers.
+
+In the main process, :func:`stop_signals` turns SIGINT and SIGTERM into
+:class:`KeyboardInterrupt` and :class:`~nanosim.validation.Terminated`, and
+:func:`stop_deferred` holds them back while a pool or a manager is being started
+(a signal in the middle of starting one would leave half-started processes that
+nothing stops); the signal takes effect when the pool exists and can be stopped.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import threading
 
+from nanosim.validation import Terminated
+
 __all__ = ["ORPHAN_EXIT_CODE", "PARENT_POLL_S", "worker_init", "watch_parent", "start_manager",
-           "terminate_executor"]
+           "terminate_executor", "stop_signals", "stop_deferred"]
 
 #: Exit status of a worker that found its parent gone.
 ORPHAN_EXIT_CODE = 3
@@ -73,7 +82,15 @@ def start_manager(ctx):
     from multiprocessing.managers import SyncManager
 
     manager = SyncManager(ctx=ctx)
-    manager.start(initializer=worker_init)
+    try:
+        manager.start(initializer=worker_init)
+    except BaseException:                  # Ctrl-C/SIGTERM while the server boots: end it, it has no work yet
+        proc = getattr(manager, "_process", None)
+        if proc is not None:
+            with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+                proc.kill()
+                proc.join(2.0)
+        raise
     return manager
 
 
@@ -98,3 +115,63 @@ def terminate_executor(pool, timeout_s: float = 2.0) -> None:
                 p.join(timeout_s)
         except (OSError, ValueError, AttributeError, AssertionError):
             pass
+
+
+_STOP = {"installed": False, "deferring": 0, "pending": [], "stopping": []}
+
+
+def _stop_exception(signum: int) -> KeyboardInterrupt:
+    return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _on_stop_signal(signum, _frame):
+    if _STOP["stopping"] or _STOP["pending"]:
+        return                          # the clean-up of the first signal is running: let it finish
+    if _STOP["deferring"]:
+        _STOP["pending"].append(signum)
+        return
+    _STOP["stopping"].append(signum)
+    raise _stop_exception(signum)
+
+
+@contextlib.contextmanager
+def stop_signals():
+    """SIGINT and SIGTERM raise :class:`KeyboardInterrupt` / :class:`~nanosim.validation.Terminated`, once.
+
+    The first signal starts the clean-up that Ctrl-C runs (workers stopped, the staging folder and
+    the lock removed); a second one arriving during that clean-up is ignored so that it can finish.
+    The previous handlers are restored on leaving. Outside the main thread: nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, _on_stop_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    _STOP.update(installed=True, deferring=0, pending=[], stopping=[])
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
+        _STOP.update(installed=False, deferring=0, pending=[], stopping=[])
+
+
+@contextlib.contextmanager
+def stop_deferred():
+    """Hold back SIGINT/SIGTERM (under :func:`stop_signals`) until the block has finished.
+
+    For starting processes (a pool, a manager, a task that spawns a worker): the signal is raised
+    when the block ends, where the caller's clean-up knows every process it started.
+    """
+    main = threading.current_thread() is threading.main_thread()
+    if main:
+        _STOP["deferring"] += 1
+    try:
+        yield
+    finally:
+        if main:
+            _STOP["deferring"] -= 1
+    if main and _STOP["deferring"] == 0 and _STOP["pending"]:
+        signum = _STOP["pending"].pop()
+        _STOP["pending"].clear()
+        _STOP["stopping"].append(signum)
+        raise _stop_exception(signum)
