@@ -318,11 +318,27 @@ def _cmd_pipeline(args) -> int:
     return 0
 
 
+#: A file that marks a run folder of a command whose report that command writes itself.
+_OWN_REPORT = ((A.MONTECARLO_JSON, "montecarlo"), (A.MC_BENCH_JSON, "montecarlo"), (A.SCORECARD_JSON, "compare"),
+               (A.SWEEP_JSON, "sweep"))
+
+
+def _check_run_kind(run, option: str, what: str) -> None:
+    """Refuse a run folder written by ``montecarlo``, ``compare`` or ``sweep`` where ``what`` needs a
+    pipeline/characterize run (its own report is written by that command).
+    """
+    for name, command in _OWN_REPORT:
+        if name in run.files:
+            raise ValueError(f"{option}: {str(run.path)!r} is a nanosim {command} run folder (it holds {name}); "
+                             f"{what} a pipeline or characterize run, and nanosim {command} writes its own report")
+
+
 def _cmd_report(args) -> int:
     from nanosim.pipeline.report import pass_count, write_report
     from nanosim.pipeline.runfolder import sealed_run, staged_run
 
     run = sealed_run(args.run)                  # refuse a folder whose files do not match its manifest
+    _check_run_kind(run, "--run", "nanosim report rewrites the report of")
     with staged_run(args.run, keep_existing=True, seed=run.seed) as stage:
         write_report(stage)
         n_ok, n_band = pass_count(stage)
@@ -343,6 +359,7 @@ def _cmd_ablation(args) -> int:
     if unknown:
         raise ValueError(f"--rows: expected names among {names}, got {unknown}")
     run = sealed_run(args.run)                  # refuse a folder whose files do not match its manifest
+    _check_run_kind(run, "--run", "nanosim ablation adds its table to")
     _check_mjcf(args)
     seed = 0 if run.seed is None else int(run.seed)
     with staged_run(args.run, keep_existing=True, seed=seed) as stage, tempfile.TemporaryDirectory() as work:
@@ -357,7 +374,9 @@ def _cmd_ablation(args) -> int:
 
 def _cmd_montecarlo(args) -> int:
     from nanosim.pipeline.mc_stats import CROSSCHECK_REL_TOL, load_spec
-    from nanosim.pipeline.montecarlo import run_montecarlo
+    from nanosim.pipeline.montecarlo import check_sample_count, run_montecarlo
+
+    check_sample_count(args.n, args.crosscheck, args.workers)         # before any work, with the estimate
 
     _check_mjcf(args)
     for c in args.controller:
@@ -422,8 +441,10 @@ def _cmd_compare(args) -> int:
     with staged_run(args.out, seed=cfg.seeds[0]) as stage:
         doc = run_compare(stage, cfg, mjcf=args.mjcf, progress=_say)
     met = ", ".join(f"{n} {v['acceptance_met']}/{v['acceptance_total']}" for n, v in doc["controllers"].items())
-    print(f"compare done in {time.perf_counter() - t0:.1f} s; criteria met on every seed: {met}; default by the "
-          f"rule: {doc['default']}; scorecard: {Path(args.out) / A.SCORECARD_MD}")
+    default = doc["default"] if doc["default"] is not None else f"none ({doc['default_reason']})"
+    print(f"compare done in {time.perf_counter() - t0:.1f} s; measured criteria met on every seed: {met}; "
+          f"default by the rule: {default}; "
+          f"scorecard: {Path(args.out) / A.SCORECARD_MD}")
     return 0
 
 
@@ -452,6 +473,7 @@ def _add_design_arguments(parser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The ``nanosim`` argument parser (one-line usage errors, exit 2)."""
     from nanosim.design.architectures import BENCH
+    from nanosim.pipeline.montecarlo import MAX_SAMPLES
     from nanosim.pipeline.seeds import MAX_SEEDS
     from nanosim.pipeline.sweep import param_names          # the names parse_param accepts
     from nanosim.plant.modes import MODES_LIST_MAX_HZ
@@ -527,7 +549,8 @@ def build_parser() -> argparse.ArgumentParser:
     ab.set_defaults(func=_cmd_ablation)
     mc = sub.add_parser("montecarlo", help="controllers on a population of fabricated stages (tolerances)")
     mc.add_argument("--n", type=_int_at_least(1), default=mc_default.n,
-                    help=f"number of fabricated stages (default {mc_default.n})")
+                    help=f"number of fabricated stages (default {mc_default.n}, at most {MAX_SAMPLES}; the first "
+                         "line states the estimated time)")
     mc.add_argument("--controller", required=True, type=_file, nargs="+", metavar="FILE",
                     help="controller.npz from 'nanosim design' (several: each on the same stages, "
                          "compared; one sub-folder each, named by the file)")

@@ -160,7 +160,13 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
         metrics.update(exp.metrics(results[name]))
         if exp.figure is not None and exp.figure_name:
             save_figure(exp.figure(results[name], context()), out / exp.figure_name)
-    write_metrics(out, metrics, twin=cfg.twin, seed=cfg.seed, seconds=_in_registry_order(timing, known))
+    # the plant of each experiment: --only adds one experiment to a run whose others may have run elsewhere
+    prev_plant = metrics.pop("plant", None)
+    by_exp = dict(metrics.pop("plant_by_experiment", None) or
+                  ({n: prev_plant for n in known} if cfg.only and prev_plant else {}))
+    by_exp.update({n: plant_description(cfg.twin) for n in names})
+    write_metrics(out, metrics, twin=cfg.twin, seed=cfg.seed, seconds=_in_registry_order(timing, known),
+                  plant_by_experiment=by_exp if cfg.only else None)
     return metrics
 
 
@@ -226,11 +232,22 @@ def write_task_metrics(out_dir, parts, seed: int, twin: bool = False, run_dir=No
                          seconds={name: parts[name][1] for name in experiments.load_builtin()}, run_dir=run_dir)
 
 
-def write_metrics(out_dir, metrics: dict, *, twin: bool, seed: int, seconds: dict, run_dir=None) -> dict:
+def write_metrics(out_dir, metrics: dict, *, twin: bool, seed: int, seconds: dict, run_dir=None,
+                  plant_by_experiment: dict | None = None) -> dict:
     """Write ``metrics`` with its ``plant``, ``seed`` and ``units`` as ``out_dir/metrics.json``; the experiments'
     ``seconds`` go to the ``timings.json`` of ``run_dir`` (default ``out_dir``). Returns ``metrics``.
+
+    ``plant_by_experiment`` (``{experiment: plant}``) labels each experiment with the plant it ran on
+    (``characterize --only`` into a run whose other experiments ran on another plant); ``plant`` is
+    then that plant if they all share it, else ``"mixed: ..."`` naming each.
     """
     metrics["plant"] = plant_description(twin)
+    if plant_by_experiment:
+        metrics["plant_by_experiment"] = dict(plant_by_experiment)
+        kinds = set(plant_by_experiment.values())
+        if len(kinds) > 1:
+            metrics["plant"] = "mixed: " + "; ".join(
+                f"{', '.join(n for n, p in plant_by_experiment.items() if p == k)} on the {k}" for k in sorted(kinds))
     metrics["seed"] = seed
     metrics["units"] = dict(METRICS_UNITS)
     path = write_json(Path(out_dir) / A.METRICS_JSON, metrics)
