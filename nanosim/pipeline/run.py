@@ -310,7 +310,7 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     cores = min(2, os.cpu_count() or 1)
     # one worker more than cores: the design's analysis and figures (after controller.npz is final)
     # run beside the first experiments on the other workers
-    from nanosim.pipeline.workers import start_manager, stop_deferred
+    from nanosim.pipeline.workers import start_manager, stop_deferred, stop_manager
 
     stopping = threading.Event()           # set while the main thread stops the pool under the launcher thread
     pool = manager = None
@@ -374,7 +374,7 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
         if pool is not None:
             stop_pool(pool)   # Ctrl-C or a failed step: stop the workers now, do not wait for them
         if manager is not None:
-            manager.shutdown()
+            stop_manager(manager)
         pool = jobs = job = exp_jobs = start_design = ready = manager = launched = launcher = None
         gc.collect()
         raise

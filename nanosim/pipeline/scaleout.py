@@ -30,7 +30,8 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
-from nanosim.pipeline.workers import start_manager, stop_deferred, terminate_executor, worker_init
+from nanosim.pipeline.workers import (start_manager, stop_deferred, stop_manager, terminate_executor,
+                                     worker_init)
 
 __all__ = ["ScaleOut", "open_executor", "run_tasks", "cpu_workers", "check_scheduler"]
 
@@ -183,6 +184,7 @@ def open_executor(scheduler: str | None = None, workers: int | None = None):
                 yield ScaleOut(pool, _QueueChannel(manager.Queue()), f"local process pool ({n} workers)", n)
             except BaseException:
                 terminate_executor(pool)        # Ctrl-C, SIGTERM or a failed task: the running tasks too
+                stop_manager(manager)
                 raise
         return
     check_scheduler(scheduler)

@@ -33,7 +33,7 @@ import threading
 from nanosim.validation import Terminated
 
 __all__ = ["ORPHAN_EXIT_CODE", "PARENT_POLL_S", "worker_init", "watch_parent", "start_manager",
-           "terminate_executor", "stop_signals", "stop_deferred"]
+           "terminate_executor", "stop_manager", "stop_signals", "stop_deferred"]
 
 #: Exit status of a worker that found its parent gone.
 ORPHAN_EXIT_CODE = 3
@@ -92,6 +92,24 @@ def start_manager(ctx):
                 proc.join(2.0)
         raise
     return manager
+
+
+def stop_manager(manager, timeout_s: float = 2.0) -> None:
+    """Stop a manager now (Ctrl-C, SIGTERM or a failed step): end its server process, then shut it down.
+
+    ``manager.shutdown()`` alone asks the server to leave and waits up to a second for it, twice; a
+    stopping command has nothing left to ask it, so the server is sent SIGTERM first.
+    """
+    proc = getattr(manager, "_process", None)
+    with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+        if proc is not None and proc.is_alive():
+            proc.terminate()
+            proc.join(timeout_s)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(timeout_s)
+    with contextlib.suppress(Exception):
+        manager.shutdown()
 
 
 def terminate_executor(pool, timeout_s: float = 2.0) -> None:
