@@ -187,3 +187,41 @@ def test_killed_run_leaves_no_worker_and_the_next_run_starts(previous, tmp_path)
     finally:
         if nxt.poll() is None:
             nxt.kill()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_stopped_montecarlo_prints_one_line_and_leaves_no_worker(tmp_path, sig):
+    """Ctrl-C/SIGTERM of a Monte Carlo on a local pool: no worker traceback, no worker left, the folder resumable."""
+    import numpy as np
+
+    from nanosim.fileio import write_npz
+
+    ctrl = write_npz(tmp_path / "c.npz", Akd=np.zeros((1, 1)), Bkd=np.zeros((1, 3)), Ckd=np.zeros((3, 1)),
+                     Dkd=np.zeros((3, 3)), dt=2.5e-4)
+    log = tmp_path / "stderr.txt"
+    out = tmp_path / "mc"
+    proc = subprocess.Popen([sys.executable, "-m", "nanosim", "montecarlo", "--controller", str(ctrl), "--n", "4",
+                             "--workers", "2", "--out", str(out)], env=ENV, stdout=subprocess.DEVNULL,
+                            stderr=open(log, "w"), preexec_fn=_default_sigint)
+    try:
+        wait_until(lambda: "chunks of" in log.read_text() and len(descendants(proc.pid)) >= 3, proc, log)
+        time.sleep(2.0)                          # the workers are inside their first samples
+        first = log.read_text().splitlines()[0]
+        assert first.startswith("  montecarlo: 4 linear-twin samples and 4 MuJoCo cross-checks to run, about ")
+        kids = descendants(proc.pid)
+        t0 = time.monotonic()
+        proc.send_signal(sig)
+        rc = proc.wait(timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = log.read_text()
+    assert rc == 128 + sig and took <= EXIT_WITHIN_S, (rc, took, err[-2000:])
+    assert "Traceback" not in err, err[-3000:]
+    said = re.findall(r"nanosim montecarlo: (?:interrupted|terminated)[^\r\n]*", err)
+    assert len(said) == 1 and said[0].endswith("every finished sample is kept; a rerun resumes it")
+    time.sleep(EXIT_WITHIN_S)
+    assert alive(kids) == set()
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".mc")) == []     # the lock is gone
+    assert (out / "montecarlo.json").is_file() and not (out / "manifest.json").exists()     # unsealed: a rerun resumes
