@@ -4,8 +4,12 @@ A command writes into a staging folder beside ``--out`` (a copy of the
 previous run, for commands that add to it). Only when every step has
 finished is ``manifest.json`` written (sha256 of every file, seed, version,
 command line) and the staging folder swapped in place of ``--out``. An
-interrupted or failed command leaves ``--out`` exactly as it was (or absent).
-A lock file refuses a second writer on the same ``--out``.
+interrupted or failed command (Ctrl-C, SIGTERM) leaves ``--out`` exactly as it
+was (or absent), and removes its staging folder and lock. An OS file lock
+(:mod:`filelock`, ``.NAME.lock`` beside ``--out``) refuses a second writer on the
+same ``--out``, on this host or another one sharing the file system; a writer
+killed with SIGKILL leaves its staging folder, which the next writer removes,
+saying so in one line.
 """
 from __future__ import annotations
 
