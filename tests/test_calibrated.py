@@ -42,7 +42,9 @@ def test_electromechanical_values_are_the_model_defaults():
     d = DampingSpec()
     assert BY_NAME["DampingSpec.hinge_loss_factor"].value == d.hinge_loss_factor
     assert BY_NAME["DampingSpec.piezo_loss_factor"].value == d.piezo_loss_factor
-    assert BY_NAME["DAC_WHITE_NOISE_V"].value == C.DAC_WHITE_NOISE_V
+    assert BY_NAME["THERMAL_DRIFT_K_RMS"].value == C.THERMAL_DRIFT_K_RMS
+    assert BY_NAME["THERMAL_DRIFT_K_RMS"].bound == tuple(C.THERMAL_DRIFT_K_BOUNDS)
+    assert BY_NAME["CREEP_PER_DECADE"].value == C.CREEP_PER_DECADE
     w0 = [p for p in CALIBRATED_PARAMETERS if p.name.startswith("piezo hysteresis")][0]
     assert w0.value == pytest.approx(PiezoConfig().pi_linear_weight, rel=1e-9)
 
@@ -53,8 +55,8 @@ def test_on_bound_is_the_distance_to_an_end():
     free = CalibratedParameter("x", 1.5, "1", None, False, "fig", "fit")
     assert at.on_bound and not inner.on_bound and not free.on_bound
     assert at.to_dict()["on_bound"] is True
-    # the wire-EDM bound is reached by the fb2 webs the mode splits ask for (mjcf/README.md, "Calibration")
-    assert BY_NAME["chain a fb2 notch web"].on_bound and not BY_NAME["chain c swing notch web"].on_bound
+    # the wire-EDM bound is reached by chain b's swing webs, which the parasitic-mode floor asks for
+    assert BY_NAME["chain b swing notch web"].on_bound and not BY_NAME["chain c swing notch web"].on_bound
     assert "the open-loop sigma at rest, 11.4 nm (Sec. 5)" in fitted_figures()
 
 
