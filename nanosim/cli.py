@@ -16,9 +16,10 @@ import time
 from pathlib import Path
 
 from nanosim import __version__
-from nanosim.validation import named_message
+from nanosim.validation import Terminated, named_message
 from nanosim import constants as C
 from nanosim.pipeline import artifacts as A
+from nanosim.pipeline.workers import stop_signals
 from nanosim.pipeline.config import (DEFAULT_ARCHITECTURE, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER,
                                      DESIGN_ARCHITECTURES, CharacterizeConfig, CompareConfig, DesignConfig,
                                      IdentifyConfig, MonteCarloConfig, PipelineConfig)
@@ -126,16 +127,32 @@ def _check_mjcf(args) -> None:
         _load_mjcf(args.mjcf)
 
 
-def _check_controller(path) -> Path:
-    """``--controller``: matches its sealed run folder (if any), a controller .npz at the loop's period."""
-    from nanosim.design.controller import DiscreteController
+def _check_controller(path, mjcf=None) -> Path:
+    """``--controller``: matches its sealed run folder (if any), a controller file at the loop's period
+    (:func:`~nanosim.design.architectures.protocol.read_controller_file`), and it stabilizes the stage.
+
+    Stability is checked before any simulation: the discrete closed loop of the controller and the
+    linear twin of the stage as the loop runs it (MuJoCo's linearization of the ideal stage, the
+    bench electronics, the one-sample computation delay) must have every pole inside the unit circle.
+    """
+    import numpy as np
+
+    from nanosim.design.architectures.protocol import read_controller_file
+    from nanosim.design.robustness import closed_loop_poles, controller_systems
+    from nanosim.pipeline.design import twin_loop_plant
     from nanosim.pipeline.runfolder import verify_input_file
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.stage import Stage, StageConfig
 
     p = verify_input_file(path, "--controller").resolve()       # a sealed run's controller must match it
-    try:
-        DiscreteController.from_npz(p, expected_dt=C.CONTROL_PERIOD_S)
-    except (OSError, ValueError) as exc:
-        raise ValueError(named_message("--controller", exc)) from None
+    cfg = read_controller_file(p, dt=C.CONTROL_PERIOD_S, name="--controller")
+    plant = twin_loop_plant(linearize(Stage(config=StageConfig.ideal(), model=_load_mjcf(mjcf))).sysd_V)
+    K, Ky = controller_systems(cfg)
+    poles = closed_loop_poles(plant.G, K, Ky, plant.delay_samples)
+    rho = float(np.max(np.abs(poles))) if poles.size else 0.0
+    if not rho < 1.0:
+        raise ValueError(f"--controller: {str(path)!r} does not stabilize the stage: a closed-loop pole at "
+                         f"|z| = {rho:.4g} >= 1 with the linear twin (the loop as run); refused before the simulation")
     return p
 
 
@@ -300,8 +317,8 @@ def _cmd_characterize(args) -> int:
     known = experiments.load_builtin()
     if args.only is not None and args.only not in known:
         raise ValueError(f"--only: expected one of {', '.join(known)}, got {args.only!r}")
-    controller = _check_controller(args.controller)         # validate before any work
     _check_mjcf(args)
+    controller = _check_controller(args.controller, args.mjcf)         # validate before any work
     cfg = CharacterizeConfig(seed=args.seed, only=args.only, twin=args.twin)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
@@ -315,8 +332,12 @@ def _cmd_pipeline(args) -> int:
     from nanosim.pipeline.run import run_pipeline
     from nanosim.pipeline.runfolder import staged_run
 
-    cfg = PipelineConfig(seed=args.seed, mjcf=args.mjcf,
-                         identify=IdentifyConfig(seed=args.seed, bands_hz=_bands_hz(args)), design=_design_config(args))
+    if args.seeds is not None and args.seed is not None:
+        raise ValueError(f"--seed: expected either --seed or --seeds, got --seed {args.seed} and --seeds "
+                         f"{','.join(map(str, args.seeds))}")
+    seed = 0 if args.seed is None else args.seed
+    cfg = PipelineConfig(seed=seed, mjcf=args.mjcf,
+                         identify=IdentifyConfig(seed=seed, bands_hz=_bands_hz(args)), design=_design_config(args))
     _check_mjcf(args)
     t0 = time.perf_counter()
     if args.seeds is not None:                  # several seeds, batched (nanosim.pipeline.seeds); parsed by its type
@@ -330,7 +351,7 @@ def _cmd_pipeline(args) -> int:
               f"their bands: mean {doc['in_band_mean']:.1f}, worst seed {doc['in_band_worst']} of {doc['banded']}; "
               f"report: {Path(args.out) / A.REPORT_MD}")
         return 0
-    with staged_run(args.out, seed=args.seed) as stage:
+    with staged_run(args.out, seed=seed) as stage:
         run_pipeline(stage, cfg)
         n_ok, n_band = pass_count(stage)
     report = Path(args.out) / A.REPORT_HTML
@@ -339,11 +360,27 @@ def _cmd_pipeline(args) -> int:
     return 0
 
 
+#: A file that marks a run folder of a command whose report that command writes itself.
+_OWN_REPORT = ((A.MONTECARLO_JSON, "montecarlo"), (A.MC_BENCH_JSON, "montecarlo"), (A.SCORECARD_JSON, "compare"),
+               (A.SWEEP_JSON, "sweep"))
+
+
+def _check_run_kind(run, option: str, what: str) -> None:
+    """Refuse a run folder written by ``montecarlo``, ``compare`` or ``sweep`` where ``what`` needs a
+    pipeline/characterize run (its own report is written by that command).
+    """
+    for name, command in _OWN_REPORT:
+        if name in run.files:
+            raise ValueError(f"{option}: {str(run.path)!r} is a nanosim {command} run folder (it holds {name}); "
+                             f"{what} a pipeline or characterize run, and nanosim {command} writes its own report")
+
+
 def _cmd_report(args) -> int:
     from nanosim.pipeline.report import pass_count, write_report
     from nanosim.pipeline.runfolder import sealed_run, staged_run
 
     run = sealed_run(args.run)                  # refuse a folder whose files do not match its manifest
+    _check_run_kind(run, "--run", "nanosim report rewrites the report of")
     with staged_run(args.run, keep_existing=True, seed=run.seed) as stage:
         write_report(stage)
         n_ok, n_band = pass_count(stage)
@@ -364,6 +401,7 @@ def _cmd_ablation(args) -> int:
     if unknown:
         raise ValueError(f"--rows: expected names among {names}, got {unknown}")
     run = sealed_run(args.run)                  # refuse a folder whose files do not match its manifest
+    _check_run_kind(run, "--run", "nanosim ablation adds its table to")
     _check_mjcf(args)
     seed = 0 if run.seed is None else int(run.seed)
     with staged_run(args.run, keep_existing=True, seed=seed) as stage, tempfile.TemporaryDirectory() as work:
@@ -378,10 +416,13 @@ def _cmd_ablation(args) -> int:
 
 def _cmd_montecarlo(args) -> int:
     from nanosim.pipeline.mc_stats import CROSSCHECK_REL_TOL, load_spec
-    from nanosim.pipeline.montecarlo import run_montecarlo
+    from nanosim.pipeline.montecarlo import check_sample_count, run_montecarlo
 
+    check_sample_count(args.n, args.crosscheck, args.workers)         # before any work, with the estimate
+
+    _check_mjcf(args)
     for c in args.controller:
-        _check_controller(c)                    # validate before any work (--scheduler's form: its type)
+        _check_controller(c, args.mjcf)         # validate before any work (--scheduler's form: its type)
     if len(args.controller) > 1:
         from nanosim.pipeline.mc_bench import controller_names
         controller_names(args.controller)
@@ -459,8 +500,10 @@ def _cmd_compare(args) -> int:
     with staged_run(args.out, seed=cfg.seeds[0]) as stage:
         doc = run_compare(stage, cfg, mjcf=args.mjcf, progress=_say)
     met = ", ".join(f"{n} {v['acceptance_met']}/{v['acceptance_total']}" for n, v in doc["controllers"].items())
-    print(f"compare done in {time.perf_counter() - t0:.1f} s; criteria met on every seed: {met}; default by the "
-          f"rule: {doc['default']}; scorecard: {Path(args.out) / A.SCORECARD_MD}")
+    default = doc["default"] if doc["default"] is not None else f"none ({doc['default_reason']})"
+    print(f"compare done in {time.perf_counter() - t0:.1f} s; measured criteria met on every seed: {met}; "
+          f"default by the rule: {default}; "
+          f"scorecard: {Path(args.out) / A.SCORECARD_MD}")
     return 0
 
 
@@ -515,6 +558,7 @@ def _add_design_arguments(parser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The ``nanosim`` argument parser (one-line usage errors, exit 2)."""
     from nanosim.design.architectures import BENCH
+    from nanosim.pipeline.montecarlo import MAX_SAMPLES
     from nanosim.pipeline.seeds import MAX_SEEDS
     from nanosim.pipeline.sweep import param_names          # the names parse_param accepts
     from nanosim.plant.modes import MODES_LIST_MAX_HZ
@@ -573,7 +617,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=_cmd_characterize)
     pl = sub.add_parser("pipeline", help="run the whole chain on the bundled stage")
     pl.add_argument("--out", required=True, type=out, help="run folder for artifacts")
-    pl.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
+    pl.add_argument("--seed", type=_int_at_least(0), default=None, help=f"{seed_help}; default 0")
     pl.add_argument("--seeds", default=None, type=_seeds(sort=True), metavar="0-4",
                     help=f"several seeds (a range or a list, at most {MAX_SEEDS}), batched; one folder per seed and a "
                          "summary report")
@@ -597,7 +641,8 @@ def build_parser() -> argparse.ArgumentParser:
     ab.set_defaults(func=_cmd_ablation)
     mc = sub.add_parser("montecarlo", help="controllers on a population of fabricated stages (tolerances)")
     mc.add_argument("--n", type=_int_at_least(1), default=mc_default.n,
-                    help=f"number of fabricated stages (default {mc_default.n})")
+                    help=f"number of fabricated stages (default {mc_default.n}, at most {MAX_SAMPLES}; the first "
+                         "line states the estimated time)")
     mc.add_argument("--controller", required=True, type=_file, nargs="+", metavar="FILE",
                     help="controller.npz from 'nanosim design' (several: each on the same stages, "
                          "compared; one sub-folder each, named by the file)")
@@ -706,31 +751,38 @@ def _options(parser: argparse.ArgumentParser, command: str) -> set:
     return set()
 
 
+#: Exit status of a command stopped by SIGINT (Ctrl-C) and by SIGTERM: 128 + the signal's number.
+EXIT_SIGINT, EXIT_SIGTERM = 128 + 2, 128 + 15
+
+
 def main(argv=None) -> int:
-    """Entry point; returns the exit status (0 ok, 2 user error, 130 interrupted)."""
+    """Entry point; returns the exit status (0 ok, 2 user error, 130 SIGINT, 143 SIGTERM)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     prog = f"nanosim {args.command}"
-    try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        kept = ("every finished sample is kept; a rerun resumes it" if args.command == "montecarlo"
-                else "the run folder was left as it was before this command")
-        print(f"{prog}: interrupted; {kept}", file=sys.stderr)
-        if threading.active_count() > 1:    # experiment threads may be inside MuJoCo: finalizing under them crashes
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(130)
-        return 130
-    except (ValueError, OSError) as exc:        # user errors, file-system errors included
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
-            msg = f"{msg}: {exc.filename}"
-        field, sep, rest = msg.partition(": ")                  # a config field's error names its option
-        if sep and field.isidentifier() and f"--{field.replace('_', '-')}" in _options(parser, args.command):
-            msg = f"--{field.replace('_', '-')}: {rest}"
-        print(f"{prog}: error: {msg}", file=sys.stderr)
-        return 2
+    with stop_signals():
+        try:
+            return int(args.func(args) or 0)
+        except KeyboardInterrupt as exc:
+            term = isinstance(exc, Terminated)
+            kept = ("every finished sample is kept; a rerun resumes it" if args.command == "montecarlo"
+                    else "the run folder was left as it was before this command")
+            print(f"{prog}: {'terminated (SIGTERM)' if term else 'interrupted'}; {kept}", file=sys.stderr)
+            status = EXIT_SIGTERM if term else EXIT_SIGINT
+            if threading.active_count() > 1:    # experiment threads may be inside MuJoCo: finalizing under them crashes
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(status)
+            return status
+        except (ValueError, OSError) as exc:        # user errors, file-system errors included
+            msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
+                msg = f"{msg}: {exc.filename}"
+            field, sep, rest = msg.partition(": ")                  # a config field's error names its option
+            if sep and field.isidentifier() and f"--{field.replace('_', '-')}" in _options(parser, args.command):
+                msg = f"--{field.replace('_', '-')}: {rest}"
+            print(f"{prog}: error: {msg}", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":

@@ -3,7 +3,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["as_finite_array", "named_message"]
+__all__ = ["as_finite_array", "named_message", "Terminated"]
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread as Ctrl-C is: the same clean-up runs (``finally`` blocks, pools stopped).
+
+    A subclass of :class:`KeyboardInterrupt`, so every path that stops work on Ctrl-C stops it on
+    SIGTERM too; the command line tells them apart by the exit status (130 for SIGINT, 143 for SIGTERM).
+    """
 
 
 def named_message(name: str, error, *, aliases: tuple = (), empty: str | None = None) -> str:

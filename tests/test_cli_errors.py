@@ -83,6 +83,19 @@ def fx(tmp_path_factory):
     write_manifest(s, seed=0, command=["nanosim", "test"])
     f["sealed"] = s
     f["sealed_mc"] = _sealed_mc(d / "sealed_mc", f["ctrl"])
+    # a .mat state space without its sample time; a controller that destabilizes the stage (u = 100 y)
+    from scipy.io import savemat
+    savemat(d / "nodt.mat", {"A": np.zeros((1, 1)), "B": np.zeros((1, 3)), "C": np.zeros((3, 1)),
+                             "D": np.zeros((3, 3))})
+    f["nodt_mat"] = d / "nodt.mat"
+    f["unstable"] = write_npz(d / "unstable.npz", Akd=np.zeros((1, 1)), Bkd=np.zeros((1, 3)), Ckd=np.zeros((3, 1)),
+                              Dkd=-100.0 * np.eye(3), dt=2.5e-4)
+    # a sealed compare folder (its scorecard): not a run that report or ablation writes into
+    c = d / "sealed_compare"
+    c.mkdir()
+    write_json(c / "scorecard.json", {"controllers": {}})
+    write_manifest(c, seed=0, command=["nanosim", "compare"])
+    f["sealed_compare"] = c
     from nanosim.plant.mjcf import DEFAULT_MJCF
     f["mjcf"] = DEFAULT_MJCF
     f["d"] = d
@@ -179,6 +192,26 @@ BAD = [
     (("modes", "--plot", ""), "--plot"),
     (("identify", "--out", "{o}/deep/x/y", "--mjcf", "{bad_xml}"), "--mjcf"),
     (("compare", "--controllers", "paper", "--out", NEW, "--model", "{model}", "--only", "nosuch"), "--only"),
+    # which seed wins, why run one twice: refused
+    (("pipeline", "--out", NEW, "--seed", "3", "--seeds", "0-1"), "--seed", "either --seed or --seeds"),
+    (("pipeline", "--out", NEW, "--seeds", "1,1"), "--seeds", "seed 1 twice"),
+    (("pipeline", "--out", NEW, "--seeds", "0-3,2"), "--seeds", "seed 2 twice"),
+    # a sample time is never assumed: the variable is named
+    (("compare", "--controllers", "{nodt_mat}", "--out", NEW, "--model", "{model}"), "--controllers",
+     "expected the variable dt"),
+    (("characterize", "--controller", "{nodt_mat}", "--out", NEW), "--controller", "expected the variable dt"),
+    (("montecarlo", "--controller", "{nodt_mat}", "--out", NEW), "--controller", "expected the variable dt"),
+    (("view", "--controller", "{nodt_mat}", "--seconds", "1", "--port", "0"), "--controller", "variable dt"),
+    # an unstable loop is refused before the simulation starts
+    (("characterize", "--controller", "{unstable}", "--out", NEW), "--controller", "does not stabilize"),
+    (("montecarlo", "--controller", "{unstable}", "--out", NEW, "--n", "1"), "--controller", "does not stabilize"),
+    # a population too large to run: refused at once, with the time it would take
+    (("montecarlo", "--controller", "{ctrl}", "--out", NEW, "--n", "1000000000000"), "--n", "at most 100000",
+     "days"),
+    # folders of other commands
+    (("report", "--run", "{sealed_mc}"), "--run", "montecarlo run folder"),
+    (("report", "--run", "{sealed_compare}"), "--run", "compare run folder"),
+    (("ablation", "--run", "{sealed_compare}"), "--run", "compare run folder"),
 ]
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from nanosim import constants as C
 from nanosim import experiments
 from nanosim.design.controller import DiscreteController
+from nanosim.design.architectures.protocol import read_controller_file
 from nanosim.experiments.registry import ExperimentContext
 from nanosim.fileio import save_figure, write_json
 from nanosim.pipeline import artifacts as A
@@ -115,7 +116,7 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
     unknown = [n for n in names if n not in known]
     if unknown:
         raise ValueError(f"only: unknown experiment {unknown[0]!r}; expected one of {list(known)}")
-    ctrl = DiscreteController.from_npz(controller_path, expected_dt=C.CONTROL_PERIOD_S)
+    ctrl = DiscreteController(read_controller_file(controller_path, dt=C.CONTROL_PERIOD_S))
     factory, base = make_factory(cfg.twin, mjcf=mjcf)
     G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
     metrics: dict = {}
@@ -159,7 +160,13 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
         metrics.update(exp.metrics(results[name]))
         if exp.figure is not None and exp.figure_name:
             save_figure(exp.figure(results[name], context()), out / exp.figure_name)
-    write_metrics(out, metrics, twin=cfg.twin, seed=cfg.seed, seconds=_in_registry_order(timing, known))
+    # the plant of each experiment: --only adds one experiment to a run whose others may have run elsewhere
+    prev_plant = metrics.pop("plant", None)
+    by_exp = dict(metrics.pop("plant_by_experiment", None) or
+                  ({n: prev_plant for n in known} if cfg.only and prev_plant else {}))
+    by_exp.update({n: plant_description(cfg.twin) for n in names})
+    write_metrics(out, metrics, twin=cfg.twin, seed=cfg.seed, seconds=_in_registry_order(timing, known),
+                  plant_by_experiment=by_exp if cfg.only else None)
     return metrics
 
 
@@ -194,7 +201,7 @@ def experiment_task(controller_npz, out_dir, name: str, seed: int, mjcf=None, tw
     t0 = time.perf_counter()
     experiments.load_builtin()
     exp = experiments.get(name)
-    ctrl = DiscreteController.from_npz(controller_npz, expected_dt=C.CONTROL_PERIOD_S)
+    ctrl = DiscreteController(read_controller_file(controller_npz, dt=C.CONTROL_PERIOD_S))
     factory, base, G0, plant = _member_setup(bool(twin), None if mjcf is None else str(mjcf))
     (met,), (res,) = run_experiments_batch([name], [plant], ctrl.config, engine="twin" if twin else "mujoco",
                                            seed=seed, exact=True, nthread=1)
@@ -225,11 +232,22 @@ def write_task_metrics(out_dir, parts, seed: int, twin: bool = False, run_dir=No
                          seconds={name: parts[name][1] for name in experiments.load_builtin()}, run_dir=run_dir)
 
 
-def write_metrics(out_dir, metrics: dict, *, twin: bool, seed: int, seconds: dict, run_dir=None) -> dict:
+def write_metrics(out_dir, metrics: dict, *, twin: bool, seed: int, seconds: dict, run_dir=None,
+                  plant_by_experiment: dict | None = None) -> dict:
     """Write ``metrics`` with its ``plant``, ``seed`` and ``units`` as ``out_dir/metrics.json``; the experiments'
     ``seconds`` go to the ``timings.json`` of ``run_dir`` (default ``out_dir``). Returns ``metrics``.
+
+    ``plant_by_experiment`` (``{experiment: plant}``) labels each experiment with the plant it ran on
+    (``characterize --only`` into a run whose other experiments ran on another plant); ``plant`` is
+    then that plant if they all share it, else ``"mixed: ..."`` naming each.
     """
     metrics["plant"] = plant_description(twin)
+    if plant_by_experiment:
+        metrics["plant_by_experiment"] = dict(plant_by_experiment)
+        kinds = set(plant_by_experiment.values())
+        if len(kinds) > 1:
+            metrics["plant"] = "mixed: " + "; ".join(
+                f"{', '.join(n for n, p in plant_by_experiment.items() if p == k)} on the {k}" for k in sorted(kinds))
     metrics["seed"] = seed
     metrics["units"] = dict(METRICS_UNITS)
     path = write_json(Path(out_dir) / A.METRICS_JSON, metrics)

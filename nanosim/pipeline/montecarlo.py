@@ -56,10 +56,53 @@ from nanosim.pipeline.scaleout import check_scheduler, open_executor, run_tasks
 from nanosim.pipeline.timings import record_timings
 
 __all__ = ["run_montecarlo", "run_chunk", "sample_plants", "summarize", "report_markdown", "sample_units",
-           "load_sample_flats"]
+           "load_sample_flats", "MAX_SAMPLES", "SAMPLE_WORKER_SECONDS", "estimate_seconds", "check_sample_count",
+           "format_duration"]
 
 SENSITIVITY_EXTRA = ("mode_1_hz", "xy_split_percent", "disk_margin_alpha")
 SPREAD_ENGINE = "twin-spread"
+
+#: Largest ``--n``: the sample files are numbered with five digits (``sample_NNNNN.json``).
+MAX_SAMPLES = 100_000
+#: Wall seconds one worker spends on one sample, per engine (every registered experiment, the bundled
+#: stage): the scale of the estimate printed before a Monte Carlo starts, calibrated on the per-sample
+#: ``seconds`` that ``timings.json`` records for single-worker runs; a loaded or faster machine differs.
+SAMPLE_WORKER_SECONDS = {"twin": 6.0, "mujoco": 120.0, SPREAD_ENGINE: 8.0}
+
+
+def format_duration(seconds: float) -> str:
+    """``"45 s"``, ``"12 min"``, ``"3.2 h"``, ``"41 days"``."""
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 2 * 86400:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.0f} days"
+
+
+def estimate_seconds(n_twin: int, n_mujoco: int, workers: int) -> dict:
+    """Estimated wall time of ``n_twin`` linear-twin samples and ``n_mujoco`` cross-checked ones [s].
+
+    ``workers`` share the samples evenly (:data:`SAMPLE_WORKER_SECONDS` per sample and worker); each
+    cross-checked sample also runs its twin's reading spread. Returns ``{"twin", "mujoco", "total"}``,
+    the MuJoCo share including that spread.
+    """
+    w = max(1, int(workers))
+    twin = n_twin * SAMPLE_WORKER_SECONDS["twin"] / w
+    mujoco = n_mujoco * (SAMPLE_WORKER_SECONDS["mujoco"] + SAMPLE_WORKER_SECONDS[SPREAD_ENGINE]) / w
+    return {"twin": twin, "mujoco": mujoco, "total": twin + mujoco}
+
+
+def check_sample_count(n: int, crosscheck: int, workers: int | None) -> None:
+    """Refuse ``--n`` above :data:`MAX_SAMPLES`, stating the time it would take (``ValueError`` naming ``--n``)."""
+    if n > MAX_SAMPLES:
+        from nanosim.pipeline.scaleout import cpu_workers
+
+        w = workers or cpu_workers()
+        est = estimate_seconds(n, min(crosscheck, n), w)["total"]
+        raise ValueError(f"--n: expected at most {MAX_SAMPLES} samples, got {n} (about {format_duration(est)} on "
+                         f"{w} worker(s)); split the population into folders with other --seed values")
 
 
 # ------------------------------------------------------------------------------ worker side
@@ -218,9 +261,9 @@ def _sample_path(out: Path, sub: str, i: int) -> Path:
 
 
 def _plan(controller_path: Path, s: MonteCarloConfig, names, tm_dict) -> dict:
-    from nanosim.design.controller import DiscreteController
+    from nanosim.design.architectures.protocol import read_controller_file
 
-    c = DiscreteController.from_npz(controller_path).config
+    c = read_controller_file(controller_path, name="--controller")
     mjcf_sha = sha256_file(Path(s.mjcf)) if s.mjcf else "bundled"
     ident = {"seed": s.seed, "controller_sha256": sha256_file(controller_path), "mjcf": mjcf_sha,
              "experiments": list(names), "tolerances_sha256": hashlib.sha256(
@@ -289,6 +332,19 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
 
     def todo_of(sub, count):
         return [i for i in range(count) if not _sample_path(out, sub, i).is_file()]
+
+    check_sample_count(settings.n, settings.crosscheck, settings.workers)
+    n_twin, n_mj = len(todo_of(A.MC_SAMPLES_DIR, settings.n)), len(todo_of(A.MC_CROSSCHECK_DIR, n_cross))
+    if n_twin or n_mj:
+        from nanosim.pipeline.scaleout import cpu_workers
+
+        w = settings.workers or (cpu_workers() if settings.scheduler is None else None)
+        est = estimate_seconds(n_twin, n_mj, w or 1)
+        on = f"{w} worker(s)" if w else "1 worker (divide by the cluster's workers)"
+        say(f"montecarlo: {n_twin} linear-twin samples and {n_mj} MuJoCo cross-checks to run, about "
+            f"{format_duration(est['total'])} on {on}, {format_duration(est['mujoco'])} of it the MuJoCo "
+            f"cross-check (--crosscheck 0 skips it); Ctrl-C or SIGTERM keeps every finished sample, a rerun "
+            "resumes")
 
     t_start = time.perf_counter()
     with contextlib.ExitStack() as stack:

@@ -10,7 +10,6 @@ import dataclasses
 import gc
 import multiprocessing
 import os
-import signal
 import sys
 import threading
 import time
@@ -94,11 +93,6 @@ def step_report(out: Path) -> None:
 PIPELINE_STEPS = ("modes", "identify", "design", "characterize", "characterize_twin", "report")
 
 
-def _ignore_sigint() -> None:
-    """Pool initializer: Ctrl-C goes to the main process, which stops the worker (no traceback from it)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def _daemon_map(fn, items, workers: int):
     """``[fn(x) for x in items]`` on ``workers`` daemon threads: Ctrl-C returns at once (a
     ``ThreadPoolExecutor`` would wait for the running tasks), as ``run_characterize`` does.
@@ -145,6 +139,7 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
     from nanosim import constants as C
     from nanosim import experiments
     from nanosim.design.controller import DiscreteController
+    from nanosim.design.architectures.protocol import read_controller_file
     from nanosim.experiments.batch_suite import MemberPlant, run_experiments_batch
     from nanosim.experiments.registry import ExperimentContext
     from nanosim.fileio import save_figure
@@ -155,7 +150,7 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
 
     out = Path(out_dir)
     names = list(experiments.load_builtin())
-    ctrl = DiscreteController.from_npz(controller_npz, expected_dt=C.CONTROL_PERIOD_S)
+    ctrl = DiscreteController(read_controller_file(controller_npz, dt=C.CONTROL_PERIOD_S))
     factory, base = make_factory(twin, mjcf=mjcf)
     G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
     plant = MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=base.model)) if twin else None,
@@ -225,8 +220,12 @@ def file_digest(path) -> str:
 
 
 def spawn_pool(workers: int):
-    """A ``spawn`` process pool whose workers leave Ctrl-C to the main process."""
-    return multiprocessing.get_context("spawn").Pool(max(1, workers), initializer=_ignore_sigint)
+    """A ``spawn`` process pool whose workers leave Ctrl-C to the main process and end with it
+    (:func:`nanosim.pipeline.workers.worker_init`).
+    """
+    from nanosim.pipeline.workers import worker_init
+
+    return multiprocessing.get_context("spawn").Pool(max(1, workers), initializer=worker_init)
 
 
 def stop_pool(pool) -> None:
@@ -315,9 +314,14 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     cores = min(2, os.cpu_count() or 1)
     # one worker more than cores: the design's analysis and figures (after controller.npz is final)
     # run beside the first experiments on the other workers
-    pool = spawn_pool(cores + 1 if cores > 1 else 1)
-    manager = multiprocessing.get_context("spawn").Manager()
+    from nanosim.pipeline.workers import start_manager, stop_deferred, stop_manager
+
+    stopping = threading.Event()           # set while the main thread stops the pool under the launcher thread
+    pool = manager = None
     try:
+        with stop_deferred():              # Ctrl-C/SIGTERM while the workers start: once they can be stopped
+            pool = spawn_pool(cores + 1 if cores > 1 else 1)
+        manager = start_manager(multiprocessing.get_context("spawn"))
         ready = manager.Event()
         jobs = {"modes": pool.apply_async(modes_task, (str(out), mj))}
         launched: dict = {}
@@ -334,7 +338,8 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
                 launched["digest"] = file_digest(out / A.CONTROLLER_NPZ)
                 launched["jobs"] = experiment_jobs(pool, out, cfg.seed, mj, twin_too=twin_too)
             except BaseException as exc:  # noqa: BLE001  (handed to the main thread)
-                launched["error"] = exc
+                if not stopping.is_set():     # else the main thread is stopping the pool under this thread
+                    launched["error"] = exc
 
         launcher = threading.Thread(target=launch_experiments, daemon=True, name="launch-experiments")
 
@@ -369,8 +374,11 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
             if left[tw] == 0:
                 done("characterize_twin" if tw else "characterize", round(time.perf_counter() - t0, 2))
     except BaseException:
-        stop_pool(pool)       # Ctrl-C or a failed step: stop the workers now, do not wait for them
-        manager.shutdown()
+        stopping.set()
+        if pool is not None:
+            stop_pool(pool)   # Ctrl-C or a failed step: stop the workers now, do not wait for them
+        if manager is not None:
+            stop_manager(manager)
         pool = jobs = job = exp_jobs = start_design = ready = manager = launched = launcher = None
         gc.collect()
         raise

@@ -4,8 +4,12 @@ A command writes into a staging folder beside ``--out`` (a copy of the
 previous run, for commands that add to it). Only when every step has
 finished is ``manifest.json`` written (sha256 of every file, seed, version,
 command line) and the staging folder swapped in place of ``--out``. An
-interrupted or failed command leaves ``--out`` exactly as it was (or absent).
-A lock file refuses a second writer on the same ``--out``.
+interrupted or failed command (Ctrl-C, SIGTERM) leaves ``--out`` exactly as it
+was (or absent), and removes its staging folder and lock. An OS file lock
+(:mod:`filelock`, ``.NAME.lock`` beside ``--out``) refuses a second writer on the
+same ``--out``, on this host or another one sharing the file system; a writer
+killed with SIGKILL leaves its staging folder, which the next writer removes,
+saying so in one line.
 """
 from __future__ import annotations
 
@@ -253,54 +257,83 @@ def _pid_of(p: Path) -> int | None:
         return None
 
 
-def _clean_stale(out: Path) -> None:
-    """Remove what a killed writer left beside ``out``; put back a previous run it had moved aside."""
-    for p in sorted(out.parent.glob(f".{out.name}.old-*")):
-        pid = _pid_of(p)
-        if pid is None or _alive(pid):
-            continue
+def _say(msg: str) -> None:
+    print(f"  {msg}", file=sys.stderr, flush=True)
+
+
+def _clean_stale(out: Path, say=_say) -> None:
+    """Remove what a stopped writer left beside ``out``; put back a previous run it had moved aside.
+
+    Called with ``out``'s lock held: every staging folder or moved-aside run beside ``out`` then
+    belongs to a writer that is gone (killed, or on a host that lost the file system), whatever
+    its process id, so this is right across hosts too. Says in one line what it removed.
+    """
+    mine = {f".{out.name}.staging-{os.getpid()}", f".{out.name}.old-{os.getpid()}"}
+    left = [p for p in sorted(out.parent.glob(f".{out.name}.old-*")) if p.name not in mine]
+    staging = [p for p in sorted(out.parent.glob(f".{out.name}.staging-*")) if p.name not in mine]
+    for p in left:
         if not out.exists():
             os.replace(p, out)                     # killed between the two renames of the swap
+            say(f"{str(out)!r}: put back the previous run that a stopped nanosim process (pid {_pid_of(p)}) "
+                "had moved aside")
         else:
             shutil.rmtree(p, ignore_errors=True)
-    for p in out.parent.glob(f".{out.name}.staging-*"):
-        pid = _pid_of(p)
-        if pid is not None and not _alive(pid):
-            shutil.rmtree(p, ignore_errors=True)
+    for p in staging:
+        shutil.rmtree(p, ignore_errors=True)
+    if staging:
+        pids = ", ".join(str(_pid_of(p)) for p in staging)
+        say(f"{str(out)!r}: removed the unfinished staging folder of a stopped nanosim process (pid {pids})")
 
 
-@dataclass
 class _Lock:
-    path: Path
+    """The writer lock ``.NAME.lock`` beside a run folder: an OS file lock (:mod:`filelock`).
+
+    The operating system releases the lock when its holder dies, on this host or (``flock`` on NFS,
+    byte-range locks on SMB) on another one sharing the file system, so a lock file a killed process
+    left behind is taken over without asking who wrote it. The file is removed on release; an
+    acquirer that locked a file another process removed meanwhile (its inode no longer at the path)
+    lets go and tries again.
+    """
+
+    def __init__(self, path: Path):
+        from filelock import FileLock
+
+        self.path = path
+        self._lock = FileLock(str(path), timeout=0, thread_local=False)
+        self.found_stale = False
+
+    def _holds_the_path(self) -> bool:
+        fd = getattr(getattr(self._lock, "_context", None), "lock_file_fd", None)
+        if fd is None:
+            return self.path.exists()
+        try:
+            return os.path.samestat(os.fstat(fd), os.stat(self.path))
+        except OSError:
+            return False
 
     def acquire(self) -> None:
-        try:
-            fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            pid = None
-            with contextlib.suppress(OSError, ValueError):
-                pid = int(self.path.read_text().strip() or "0")
-            if pid and _alive(pid):
-                raise RunFolderError(f"--out: another nanosim process (pid {pid}) is writing "
-                                     f"{str(self.path.parent / self.path.name[1:-5])!r}; wait for it or choose "
-                                     "another folder") from None
-            self.path.unlink(missing_ok=True)          # stale lock of a dead process
-            fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        with os.fdopen(fd, "w") as fh:
-            fh.write(str(os.getpid()))
+        from filelock import Timeout
+
+        out = self.path.parent / self.path.name[1:-len(".lock")]
+        self.found_stale = self.path.exists()
+        for _ in range(5):
+            try:
+                self._lock.acquire(timeout=0)
+            except Timeout:
+                pids = sorted(_pid_of(p) for p in out.parent.glob(f".{out.name}.staging-*"))
+                who = f" (pid {', '.join(map(str, pids))})" if pids else ""
+                raise RunFolderError(f"--out: another nanosim process{who} is writing {str(out)!r}; wait for it or "
+                                     "choose another folder") from None
+            if self._holds_the_path():
+                return
+            self._lock.release()
+        raise RunFolderError(f"--out: cannot take the writer lock {str(self.path)!r} (it keeps being replaced)")
 
     def release(self) -> None:
-        self.path.unlink(missing_ok=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+        if self._lock.is_locked:
+            if self._holds_the_path():
+                self.path.unlink(missing_ok=True)      # before letting go: nobody takes a lock on a removed file
+            self._lock.release()
 
 
 @contextlib.contextmanager
@@ -308,7 +341,8 @@ def writer_lock(out: str | os.PathLike):
     """The writer lock of run folder ``out`` (for commands that write in place instead of staging).
 
     The same lock :func:`staged_run` takes: a second writer on ``out`` gets a one-line
-    :class:`RunFolderError`; a lock left by a dead process is taken over.
+    :class:`RunFolderError`; a lock left by a dead process is taken over (see :class:`_Lock`), and
+    what that process left beside ``out`` is removed, in one line.
     """
     out = Path(out).resolve()
     made = _make_parents(out.parent)            # removed again if the command fails before writing into them
@@ -319,6 +353,7 @@ def writer_lock(out: str | os.PathLike):
         _remove_empty(made)
         raise
     try:
+        _clean_stale(out)
         yield out
         made = []
     finally:

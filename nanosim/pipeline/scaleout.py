@@ -30,6 +30,9 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
+from nanosim.pipeline.workers import (start_manager, stop_deferred, stop_manager, terminate_executor,
+                                     worker_init)
+
 __all__ = ["ScaleOut", "open_executor", "run_tasks", "cpu_workers", "check_scheduler"]
 
 
@@ -174,11 +177,14 @@ def open_executor(scheduler: str | None = None, workers: int | None = None):
             yield ScaleOut(_InlineExecutor(), _QueueChannel(queue.Queue()), "this process", 1)
             return
         ctx = multiprocessing.get_context("spawn")
-        with ctx.Manager() as manager, ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+        # workers and the manager ignore SIGINT and leave when this process dies (nanosim.pipeline.workers)
+        with start_manager(ctx) as manager, ProcessPoolExecutor(max_workers=n, mp_context=ctx,
+                                                                initializer=worker_init) as pool:
             try:
                 yield ScaleOut(pool, _QueueChannel(manager.Queue()), f"local process pool ({n} workers)", n)
             except BaseException:
-                pool.shutdown(wait=False, cancel_futures=True)
+                terminate_executor(pool)        # Ctrl-C, SIGTERM or a failed task: the running tasks too
+                stop_manager(manager)
                 raise
         return
     check_scheduler(scheduler)
@@ -202,8 +208,13 @@ def open_executor(scheduler: str | None = None, workers: int | None = None):
                 raise ValueError(f"--scheduler: cannot use the address {scheduler!r} ({exc})") from None
             n = max(1, len(client.scheduler_info().get("workers", {})))
             where = f"Dask scheduler {scheduler} ({n} workers)"
+        executor = client.get_executor(pure=False)
         try:
-            yield ScaleOut(client.get_executor(pure=False), _DaskChannel(client), where, n)
+            yield ScaleOut(executor, _DaskChannel(client), where, n)
+        except BaseException:
+            with contextlib.suppress(Exception):        # Ctrl-C, SIGTERM, a failed task: cancel on the cluster
+                executor.shutdown(wait=False)
+            raise
         finally:
             client.close()
     finally:
@@ -228,8 +239,10 @@ def run_tasks(scale: ScaleOut, fn: Callable, tasks: Iterable[tuple], on_result: 
         sink = _BarSink(bar)                # tasks run inside submit: update the bar as they report
     futures = {}
     try:
+        inline = isinstance(scale.executor, _InlineExecutor)
         for task in tasks:
-            futures[scale.executor.submit(fn, *task, sink)] = task
+            with contextlib.nullcontext() if inline else stop_deferred():   # a local pool starts a worker in submit
+                futures[scale.executor.submit(fn, *task, sink)] = task
         pending = set(futures)
         while pending:
             done, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)

@@ -165,7 +165,8 @@ def flatten_metrics(m: dict) -> dict:
     out: dict = {k.key: None for k in METRICS if k.per_seed}
     out["bandwidth_S_hz"] = _num(m.get("bandwidth_S_hz"))
     out["bandwidth_S_feedback_hz"] = _num(m.get("bandwidth_S_feedback_hz"))
-    out["bandwidth_T_hz"] = _num(m.get("bandwidth_T_hz"))
+    bt = _num(m.get("bandwidth_T_hz"))
+    out["bandwidth_T_hz"] = bt if bt is not None and math.isfinite(bt) and bt >= 0 else None   # no -3 dB crossing
     step = m.get("step_2um") or {}
     if step:
         settle = step.get("settling_ms")
@@ -294,12 +295,14 @@ def scorecard(specs, per_seed: dict, robustness: dict, config, *, model_path=Non
                 acceptance[met.key] = {"criterion": met.criterion, "worst": st["worst"],
                                        "pass": met.passes(st["worst"]) if st["worst"] is not None else None}
         n_pass = sum(1 for a in acceptance.values() if a["pass"])
+        not_run = [k for k, a in acceptance.items() if a["pass"] is None]      # --only, --no-robustness, objects
         ctrls[spec.name] = {
             "source": spec.source, "linear": spec.is_lti,
             "tuning_rule": spec.design.tuning_rule if spec.design is not None else None,
             "parameters": spec.design.parameters if spec.design is not None else None,
             "seeds": {str(s): v for s, v in flat.items()}, "robustness": rob, "summary": summary,
-            "acceptance": acceptance, "acceptance_met": n_pass, "acceptance_total": len(acceptance),
+            "acceptance": acceptance, "acceptance_met": n_pass, "acceptance_total": len(acceptance) - len(not_run),
+            "acceptance_not_measured": not_run,
             "sampled_parameter_set_stable": rob.get("sampled_all_stable"),
         }
     doc = {"controllers": ctrls, "seeds": list(config.seeds),
@@ -331,9 +334,11 @@ def choose_default(doc: dict) -> tuple[str | None, str]:
                       w(nc[1], "bandwidth_S_feedback_hz"))
     best = max(cands, key=key)
     c = best[1]
-    failed = [k for k, a in c["acceptance"].items() if not a["pass"]]
-    why = (f"meets {c['acceptance_met']} of {c['acceptance_total']} criteria on every seed"
-           + (f" (not: {', '.join(failed)})" if failed else " (all)"))
+    failed = [k for k, a in c["acceptance"].items() if a["pass"] is False]
+    unmeasured = [k for k, a in c["acceptance"].items() if a["pass"] is None]
+    why = (f"meets {c['acceptance_met']} of {c['acceptance_total']} measured criteria on every seed"
+           + (f" (not: {', '.join(failed)})" if failed else " (all)")
+           + (f"; not measured in this comparison: {', '.join(unmeasured)}" if unmeasured else ""))
     return best[0], why
 
 
@@ -389,7 +394,8 @@ def _markdown(doc: dict) -> str:
              "uncertainty set).\n",
              markdown_table(doc), "",
              f"**Default rule.** {doc['default_rule']}", "",
-             f"**Default:** `{doc['default']}` -- {doc['default_reason']}.", "", "## Designs", ""]
+             (f"**Default:** `{doc['default']}` -- {doc['default_reason']}." if doc["default"] is not None
+              else f"**Default:** none -- {doc['default_reason']}."), "", "## Designs", ""]
     for n, c in doc["controllers"].items():
         rule = c["tuning_rule"] or ("user controller" + ("" if c["linear"] else " object (not analysed: no "
                                                           "state-space matrices)"))
@@ -423,6 +429,7 @@ def _html(doc: dict) -> str:
     figs = "".join(f'<figure><img src="{n}" alt="{html.escape(cap)}"><figcaption>{html.escape(cap)}</figcaption>'
                    f"</figure>" for n, cap in A.COMPARE_FIGURES)
     seeds = ", ".join(str(s) for s in doc["seeds"])
+    default = "none" if doc["default"] is None else f"<code>{html.escape(str(doc['default']))}</code>"
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>Controller scorecard</title>
 <style>body{{font-family:sans-serif;max-width:1400px;margin:2em auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px;text-align:left}}td.ok{{background:#e3f5e1}}td.bad{{background:#fbe3e3}}
@@ -432,7 +439,7 @@ Cells: mean &plusmn; standard deviation over the seeds (worst case); green/red: 
 specification (nanosim/pipeline/scorecard.py, ACCEPTANCE) on the worst case.</p>
 <table><tr><th>metric</th><th>target</th>{head}</tr>{''.join(rows)}</table>
 <p><b>Default rule.</b> {html.escape(doc['default_rule'])}</p>
-<p><b>Default:</b> <code>{html.escape(str(doc['default']))}</code> &mdash; {html.escape(doc['default_reason'])}.</p>
+<p><b>Default:</b> {default} &mdash; {html.escape(doc['default_reason'])}.</p>
 <h2>Designs</h2><ul>{designs}</ul><h2>Figures</h2>{figs}</body></html>
 """
 

@@ -53,8 +53,8 @@ def parse_seeds(text: str, *, sort: bool = True) -> tuple[int, ...]:
     Raises
     ------
     ValueError
-        Not a range/list of integers >= 0, or more than :data:`MAX_SEEDS` seeds (checked before
-        any list is built).
+        Not a range/list of integers >= 0, a seed listed twice (``1,1``, ``0-3,2``), or more than
+        :data:`MAX_SEEDS` seeds (checked before any list is built).
     """
     out: dict[int, None] = {}
     what = f"a range like 0-4 or a list like 0,3,7 of at most {MAX_SEEDS} integers >= 0"
@@ -66,9 +66,14 @@ def parse_seeds(text: str, *, sort: bool = True) -> tuple[int, ...]:
                 raise ValueError
             if hi - lo + 1 > MAX_SEEDS:             # before the range is built
                 raise OverflowError(f"{hi - lo + 1}")
+            twice = next((s for s in range(lo, hi + 1) if s in out), None)
+            if twice is not None:                   # which run would the second one be?
+                raise LookupError(twice)
             out.update(dict.fromkeys(range(lo, hi + 1)))
             if len(out) > MAX_SEEDS:
                 raise OverflowError(f"more than {MAX_SEEDS}")
+    except LookupError as exc:
+        raise ValueError(f"--seeds: expected distinct seeds, got seed {exc.args[0]} twice in {text!r}") from None
     except OverflowError as exc:
         raise ValueError(f"--seeds: expected at most {MAX_SEEDS} seeds, got {exc} in {text!r}") from None
     except ValueError:
@@ -107,6 +112,7 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
     from nanosim.pipeline.characterize import write_task_metrics
     from nanosim.pipeline.run import (design_task, experiment_specs, experiments_names, modes_task, spawn_pool,
                                       stop_pool)
+    from nanosim.pipeline.workers import stop_deferred
 
     mj = None if cfg.mjcf is None else str(cfg.mjcf)
     n_exp = len(experiments_names()) * (2 if cfg.characterize_twin_too else 1)
@@ -128,9 +134,11 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
     parts = {s: {False: {}, True: {}} for s in seeds}
     left = {s: n_exp for s in seeds}
     finished: queue.SimpleQueue = queue.SimpleQueue()
-    pool = spawn_pool(workers)
+    pool = None
     running = 0
     try:
+        with stop_deferred():          # Ctrl-C/SIGTERM while the workers start: once they can be stopped
+            pool = spawn_pool(workers)
         while ready or running:
             while ready and running < workers:
                 _, _, _, kind, s, fn, args = heapq.heappop(ready)
@@ -171,7 +179,8 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
                                            run_dir=_seed_dir(out, s))
                     say(f"seed {s}: experiments done")
     except BaseException:
-        stop_pool(pool)        # Ctrl-C or a failed task: stop the workers now
+        if pool is not None:
+            stop_pool(pool)    # Ctrl-C or a failed task: stop the workers now
         pool = ready = finished = None
         gc.collect()           # release the pool's semaphores now
         raise

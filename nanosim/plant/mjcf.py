@@ -50,9 +50,11 @@ def load_model(path: str | os.PathLike | None = None, *,
     ----------
     path : MJCF file; default the bundled ``mjcf/scene.xml``.
     stiffness_scale : {family: factor} scales stiffness and damping of every joint of a
-        notch family (``fb1``, ``fb2``, ``swing``, ``apa``; v1 names ``fourbar1``,
-        ``fourbar2``, ``lever`` are aliases) in every modelled direction, or of a
-        tendon by name (e.g. ``a_piezo``).
+        notch family (``fb1``, ``fb2``, ``swing``; v1 names ``fourbar1``, ``fourbar2`` are
+        aliases) in every modelled direction, or of a tendon or joint by name (e.g.
+        ``a_piezo``, ``a_crank_base_bend``). The family ``apa`` (v1 name ``lever``) is refused
+        with the bundled model: it lumps the APA's notches into the crank joints, so there is
+        no joint of that family to scale (scale the crank joints by name instead).
     body_mass_kg : {body: mass} sets a body's mass, scaling its inertia alike.
 
     Raises
@@ -116,7 +118,8 @@ def _scale_stiffness(model: mujoco.MjModel, scale: Mapping[str, float]) -> None:
                     hit = True
             if not hit:
                 raise ValueError(f"stiffness_scale: family {key!r} has no joints in this model (the simulation "
-                                 f"model lumps the APA notches on the crank joints)")
+                                 f"model lumps the APA notches on the crank joints); scale the crank joints by name "
+                                 f"instead, e.g. {{'a_crank_base_bend': {factor!r}}}")
         else:
             tid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, key)
             jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, key)

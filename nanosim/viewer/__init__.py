@@ -10,6 +10,8 @@ import socket
 import sys
 import time
 
+from nanosim.validation import Terminated
+
 
 def add_view_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``view`` options to ``parser``."""
@@ -92,8 +94,9 @@ def run_view(args) -> int:
         else:
             while True:
                 time.sleep(1.0)
-    except KeyboardInterrupt:
-        pass
+    except KeyboardInterrupt as exc:        # Ctrl-C is how a viewer ends; SIGTERM ends it with its status
+        if isinstance(exc, Terminated):
+            raise
     finally:
         app.stop()
     return 0

@@ -5,7 +5,6 @@ The mechanics is the MuJoCo :class:`~nanosim.plant.stage.Stage` or the linear
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -25,7 +24,9 @@ __all__ = ["load_controller", "PHYSICS", "LiveSim"]
 
 
 def load_controller(path):
-    """DiscreteController from an .npz file at the loop's 4 kHz; one-line errors naming ``--controller``.
+    """DiscreteController from a controller file (``.npz``/``.mat``, read by
+    :func:`nanosim.design.architectures.protocol.read_controller_file`) at the loop's 4 kHz; one-line
+    errors naming ``--controller``.
 
     Raises
     ------
@@ -34,16 +35,9 @@ def load_controller(path):
     ValueError
         A directory, not a controller ``.npz``, or a sample time other than the loop's.
     """
-    p = Path(path)
-    if p.is_dir():
-        raise ValueError(f"--controller: expected a controller .npz file, got the directory {str(p)!r}")
-    if not p.is_file():
-        raise FileNotFoundError(f"--controller: no such file {str(p)!r} (expected a .npz from the synthesis step)")
-    try:
-        return DiscreteController.from_npz(p, expected_dt=C.CONTROL_PERIOD_S)
-    except (OSError, KeyError, ValueError) as exc:
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ValueError(f"--controller: {msg}" if str(p) in msg else f"--controller: {str(p)!r}: {msg}") from None
+    from nanosim.design.architectures.protocol import read_controller_file
+
+    return DiscreteController(read_controller_file(path, dt=C.CONTROL_PERIOD_S, name="--controller"))
 
 
 PHYSICS = ("mujoco", "linear")

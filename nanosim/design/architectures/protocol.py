@@ -1,4 +1,4 @@
-"""What the bench runs: discrete state spaces, Python objects, and how a name becomes a controller.
+r"""What the bench runs: discrete state spaces, Python objects, and how a name becomes a controller.
 
 The loop protocol
 -----------------
@@ -17,12 +17,29 @@ controllers (feedforward) need no more than this: with ``e = r - y`` and ``y`` t
 ``r = e + y``, so a feedforward is an ordinary two-degree-of-freedom controller with
 inputs ``[e; y]`` (:mod:`nanosim.design.architectures.feedforward`).
 
+Controller files
+----------------
+One reader, :func:`read_controller_file`, for every command (``--controller`` of characterize,
+montecarlo and view, ``--controllers`` of compare). A controller file is a
+``.npz`` or a MATLAB ``.mat`` file holding one state space
+
+.. math:: x_{k+1} = A x_k + B [e_k; y_k], \qquad u_k = C x_k + D [e_k; y_k]
+
+with the variables
+
+* ``Akd, Bkd, Ckd, Dkd`` (what ``nanosim design`` writes as ``controller.npz``) or ``A, B, C, D``
+  (a python-control or MATLAB ``ss``), 3 outputs (controller V), 3 error inputs ``e = r - y``
+  (sensor V) and optionally 3 measurement inputs ``y`` (a two-degree-of-freedom controller);
+* ``dt`` (or MATLAB's ``Ts``): the sample time in seconds, required. It must be the loop's
+  period, 2.5e-4 s (4 kHz); ``dt = 0`` marks a continuous ``A, B, C, D``, mapped to 4 kHz by
+  Tustin. A file without it is refused, naming the variable: the sample time is never assumed;
+* ``n_error`` (optional): the number of error inputs (default 3; all inputs if 3, then 3
+  measurements if there are 6).
+
 Controller specifications (``nanosim compare --controllers ...``)
 ------------------------------------------------------------------
 * a bench name (:data:`nanosim.design.architectures.BENCH`), designed from the identified model;
-* ``.npz`` or ``.mat`` with ``A, B, C, D, dt`` (a python-control StateSpace; ``dt = 0``: a
-  continuous one, mapped to 4 kHz by Tustin) or ``Akd, Bkd, Ckd, Dkd, dt`` (``controller.npz``),
-  optional ``n_error`` (default: 3 error inputs, then measurements if there are 6 inputs);
+* a controller file (above);
 * ``module:function`` or ``path/to/file.py:function``: ``function()`` returns a fresh
   controller object (``step``/``reset``), a ``DiscreteController``/``ControllerConfig``, or a
   discrete StateSpace.
@@ -43,7 +60,11 @@ import numpy as np
 from nanosim.design.architectures.common import DT_S, BenchDesign, split_2dof
 from nanosim.design.controller import ControllerConfig, DiscreteController
 
-__all__ = ["ObjectController", "ControllerSpec", "load_controller", "config_from_arrays", "is_bench_name"]
+__all__ = ["ObjectController", "ControllerSpec", "load_controller", "config_from_arrays", "is_bench_name",
+           "read_controller_file", "CONTROLLER_FILE_SUFFIXES"]
+
+#: File types :func:`read_controller_file` reads.
+CONTROLLER_FILE_SUFFIXES = (".npz", ".mat")
 
 _SPEC_FUNC = re.compile(r"^(?P<mod>[^:]+):(?P<func>[A-Za-z_][A-Za-z0-9_]*)$")
 
@@ -151,12 +172,12 @@ def _n_error(n_in: int, n_out: int, given) -> int | None:
 def config_from_arrays(data: dict, source: str, dt: float = DT_S) -> ControllerConfig:
     """A :class:`ControllerConfig` from ``Akd..Dkd, dt`` or ``A, B, C, D, dt`` arrays.
 
-    A continuous system (``dt`` 0 or missing with ``A..D``) is mapped to ``dt`` by Tustin.
+    A continuous system (``dt = 0`` with ``A..D``) is mapped to ``dt`` by Tustin.
 
     Raises
     ------
     ValueError
-        Missing matrices, wrong shapes or a sample time other than ``dt``.
+        Missing matrices, no sample time (``dt``/``Ts``), wrong shapes or a sample time other than ``dt``.
     """
     import control as ct
     keys = ("Akd", "Bkd", "Ckd", "Dkd") if "Akd" in data else ("A", "B", "C", "D")
@@ -167,8 +188,17 @@ def config_from_arrays(data: dict, source: str, dt: float = DT_S) -> ControllerC
     A, B, C, D = (np.atleast_2d(np.asarray(data[k], float)) for k in keys)
     if A.size == 0:
         A = np.zeros((0, 0))
-    T = float(np.asarray(data["dt"], float).ravel()[0]) if "dt" in data else (
-        float(np.asarray(data["Ts"], float).ravel()[0]) if "Ts" in data else 0.0)
+    key = "dt" if "dt" in data else ("Ts" if "Ts" in data else None)
+    if key is None:
+        raise ValueError(f"{source}: dt: expected the variable dt, the controller's sample time in s "
+                         f"({dt:g} for the loop, 0 for a continuous A, B, C, D), found only "
+                         f"{', '.join(sorted(map(str, data)))}")
+    try:
+        T = float(np.asarray(data[key], float).ravel()[0])
+    except (TypeError, ValueError, IndexError):
+        raise ValueError(f"{source}: {key}: expected the sample time in s, got {data[key]!r}") from None
+    if not np.isfinite(T) or T < 0:
+        raise ValueError(f"{source}: {key}: expected a sample time >= 0 s, got {T!r}")
     ne = _n_error(B.shape[1], C.shape[0], data.get("n_error"))
     if T == 0.0:
         if keys[0] == "Akd":
@@ -182,6 +212,50 @@ def config_from_arrays(data: dict, source: str, dt: float = DT_S) -> ControllerC
         return ControllerConfig(A, B, C, D, T, ne)
     except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
+
+
+def read_controller_file(path, *, dt: float = DT_S, n: int = 3, name: str = "controller") -> ControllerConfig:
+    """Read a controller file (``.npz`` or ``.mat``, see the module docstring) as a :class:`ControllerConfig`.
+
+    The one reader of controller files: ``nanosim characterize``, ``montecarlo``, ``view`` and
+    ``compare`` all read their controllers with it.
+
+    Parameters
+    ----------
+    path : path
+        The file.
+    dt : float
+        The loop's sample time [s]; a discrete controller must have it, a continuous one is
+        mapped to it by Tustin.
+    n : int
+        Channels (3 commands, 3 error inputs).
+    name : str
+        The argument named in error messages (``--controller``).
+
+    Raises
+    ------
+    ValueError
+        Not a ``.npz``/``.mat`` file, unreadable, missing matrices or sample time, wrong shapes,
+        another sample time, or not 3 commands and 3 error inputs; the message starts with ``name``.
+    FileNotFoundError
+        No such file.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{name}: expected a controller file (.npz or .mat), got the directory {str(p)!r}")
+    if not p.is_file():
+        raise FileNotFoundError(f"{name}: no such file {str(p)!r}")
+    try:
+        cfg = _load_matrix_file(p, dt)
+        _check_io(cfg, n, str(p))
+    except (OSError, ValueError, KeyError) as exc:
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        for prefix in (f"controller {str(p)!r}: ", "controller: "):
+            msg = msg[len(prefix):] if msg.startswith(prefix) else msg
+        if str(p) not in msg:
+            msg = f"{str(p)!r}: {msg}"
+        raise ValueError(f"{name}: {msg}") from None
+    return cfg
 
 
 def _load_matrix_file(path: Path, dt: float) -> ControllerConfig:
