@@ -212,7 +212,7 @@ def _read_npz(path: Path) -> dict:
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path}: not an .npz file (expected a zip archive of .npy arrays)")
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with np.load(path) as z:
             return {k: z[k] for k in z.files}
     except ValueError as exc:
         raise ValueError(f"{path}: not a readable .npz file of plain arrays ({str(exc).splitlines()[0]})") from None

@@ -335,7 +335,11 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
 
     check_sample_count(settings.n, settings.crosscheck, settings.workers)
     n_twin, n_mj = len(todo_of(A.MC_SAMPLES_DIR, settings.n)), len(todo_of(A.MC_CROSSCHECK_DIR, n_cross))
-    if n_twin or n_mj:
+
+    def announce():
+        """The estimate, on the first line (after a scheduler answered, so that its error stays one line)."""
+        if not (n_twin or n_mj):
+            return
         from nanosim.pipeline.scaleout import cpu_workers
 
         w = settings.workers or (cpu_workers() if settings.scheduler is None else None)
@@ -346,12 +350,17 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
             f"cross-check (--crosscheck 0 skips it); Ctrl-C or SIGTERM keeps every finished sample, a rerun "
             "resumes")
 
+    if settings.scheduler is None:
+        announce()
+
     t_start = time.perf_counter()
     with contextlib.ExitStack() as stack:
         # connect (Dask) or start the pool before anything is written: a scheduler that does not answer
         # leaves --out as it was; a sealed folder keeps its manifest until the work starts
         scale = (stack.enter_context(open_executor(settings.scheduler, settings.workers))
                  if any(todo_of(sub, count) for sub, _, count in phases) else None)
+        if settings.scheduler is not None:
+            announce()
         stack.enter_context(writer_lock(out))
         _check_out(out, plan)                               # again under the lock
         out.mkdir(exist_ok=True)

@@ -271,6 +271,12 @@ def _load_matrix_file(path: Path, dt: float) -> ControllerConfig:
         data = {k: v for k, v in raw.items() if not k.startswith("__")}
     else:
         raise ValueError(f"controller: expected a .npz or .mat file, got {str(path)!r}")
+    for key, v in data.items():
+        if np.iscomplexobj(v):
+            raise ValueError(f"{path}: {key}: expected real values, got a complex array")
+    for key in ("dt", "Ts"):
+        if key in data and np.size(data[key]) != 1:
+            raise ValueError(f"{path}: {key}: expected one sample time in seconds, got {np.size(data[key])} values")
     return config_from_arrays(data, str(path), dt)
 
 
