@@ -3,7 +3,8 @@
 The viewer's references are displacements from home, so the pattern's field
 ``[0, size]^2`` is centred on home. The scan first moves from the current
 reference to the pattern's first point (a raised cosine of
-:data:`~nanosim.experiments.loop.SETTLE_S`), then runs the pattern through the
+the approach time of
+:data:`~nanosim.experiments.loop.LOOP_PROTOCOL`), then runs the pattern through the
 bench's command interpolation (:func:`nanosim.experiments.scan.pattern_reference`).
 Each imaged sample adds the sample's height at the table's true position to the
 pixel of the sensor reading (raster: trace lines only); a pixel shows the mean of
@@ -14,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from nanosim.experiments import scan as S
-from nanosim.experiments.loop import SETTLE_S
+from nanosim.experiments.loop import LOOP_PROTOCOL
 from nanosim.ramps import raised_cosine
 
 __all__ = ["LiveScan", "height_rgb"]
@@ -55,7 +56,7 @@ class LiveScan:
         ref = S.pattern_reference(self.pattern)
         ref[:, :2] -= size_um / 2
         start = np.asarray(start_um, float)
-        w = raised_cosine(int(SETTLE_S * fs), 0.6)
+        w = raised_cosine(int(LOOP_PROTOCOL.approach_s * fs), 0.6)
         pre = start + w[:, None] * (ref[0] - start)
         self.ref_um = np.concatenate([pre, ref])
         imaged = self.pattern.imaged & (self.pattern.direction > 0)
