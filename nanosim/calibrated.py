@@ -110,7 +110,7 @@ CALIBRATED_PARAMETERS: tuple[CalibratedParameter, ...] = _webs() + (
     CalibratedParameter("DampingSpec.piezo_loss_factor", 0.0494, "1", None, False,
                         "the paper's modal damping ratios (Appendix A)",
                         "nanosim.plant.calibrate.fit_damping, relative least squares over the six modes"),
-    CalibratedParameter("THERMAL_DRIFT_K_RMS", 0.0682, "K rms", (1e-3, 0.1), True,
+    CalibratedParameter("THERMAL_DRIFT_K_RMS", 0.0594, "K rms", (1e-3, 0.1), True,
                         "the open-loop sigma at rest, 11.4 nm (Sec. 5)",
                         "tools/fit_drift_level.py: mean variance over 20 stages' X and Y probes, every broadband "
                         "source at its datasheet level (constants.THERMAL_DRIFT_K_BOUNDS)"),

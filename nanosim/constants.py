@@ -148,7 +148,7 @@ THERMAL_AIR_TAU_S = 0.5
 # on streams of their own), with every broadband source at its datasheet level. Calibrated within
 # [THERMAL_DRIFT_K_BOUNDS]: a sealed chamber on an isolated table in an air-conditioned laboratory, whose
 # air holds +/-0.1 K (HVAC class), at most that; at least 1 mK.
-THERMAL_DRIFT_K_RMS = 0.0682
+THERMAL_DRIFT_K_RMS = 0.0594
 THERMAL_DRIFT_K_BOUNDS = (1e-3, 0.1)
 
 # --- capacitance gauges and ADC (paper Sec. 2-3) -----------------------------
