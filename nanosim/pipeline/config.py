@@ -22,7 +22,7 @@ __all__ = ["IdentifyConfig", "DesignConfig", "CharacterizeConfig", "PipelineConf
 # the exported controller of `nanosim design`: every named design of nanosim.design.architectures.DESIGN_RULES
 # (tests/test_hinf_fourblock.py checks the list against it), "hinf" the four-block H-infinity design by default;
 # "mixsyn" the mixed-sensitivity design these settings describe (the paper's with --paper-design)
-DESIGN_ARCHITECTURES = ("hinf", "paper", "hinf-damped", "pi-notch", "damping-tracking", "robust", "feedforward",
+DESIGN_ARCHITECTURES = ("hinf", "paper", "hinf-damped", "pi-notch", "damping-tracking", "robust", "feedforward", "irc",
                         "lqg", "lqg-nominal", "lqg-gain-range", "lqg-bandwidth", "mixsyn")
 DEFAULT_ARCHITECTURE = "hinf"
 

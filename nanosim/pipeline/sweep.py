@@ -388,7 +388,7 @@ def report_markdown(doc: dict, wall_seconds: float) -> str:
              "relative differences below " + ", ".join(f"{v:.3g} ({k})" for k, v in doc["pareto_ties"].items()) +
              " are ties (for the measured ones, their spread over seeds 0-4 on the nominal stage).", "",
              f"![Pareto figure]({A.FIG_SWEEP_PARETO})", ""]
-    hinf = doc["design"]["architecture"] == "mixsyn"
+    hinf = doc["design"]["architecture"] in ("hinf", "mixsyn")   # the designs with a gamma
     extra = (("gamma", "gamma"),) if hinf else (("disk margin", "exported_disk_margin"), ("mu", "exported_mu_peak"),
                                                 ("R_u", "exported_control_weight"))
     lines += ["| # | point | first mode [Hz] | travel [um] | S bandwidth [Hz] | T bandwidth [Hz] | resolution [nm] | "
