@@ -10,9 +10,9 @@ are computed on a separate validation record (another PRBS seed).
 Beyond the paper (``IdentifySettings.shared_poles``, default on): a resonance
 belongs to the structure, so the lightly damped poles that several columns
 share are re-estimated jointly from all three records, one pole per mode
-(:func:`identification.refine_shared_poles`). A column that barely excites a
-mode no longer sets it alone: actuator C's estimate of the 462/472 Hz pair was
-0.4-0.7 % high with zeta 0.011-0.015 (MuJoCo: 0.004) on seeds 1, 2 and 4.
+(:func:`identification.refine_shared_poles`), so a column that barely excites a
+mode does not set its frequency and damping alone: its estimate, from a record
+with little energy near the mode, is biased high in both.
 """
 from __future__ import annotations
 
@@ -179,8 +179,8 @@ def _identify(settings: IdentifySettings, n0: int, tr_e, tr_v) -> IdentifiedStag
 # actuator on a nodal line of a mode (actuator A of the v1 stage, for the 176.3 and 464.5 Hz modes)
 # leaves it to the other columns. A lightly damped pair that no other column has within the modal
 # frequency uncertainty (3 %) is therefore not a mode of the stage but the column's spare states
-# (paper order 13 for a column with fewer modes) fitting noise, creep and hysteresis: the 11.9 Hz
-# pole-zero pair of column A (issue 13). Weakly excited true modes, estimated a little differently
+# (paper order 13 for a column with fewer modes) fitting noise, creep and hysteresis, such as a
+# low-frequency pole-zero pair that only one column has. Weakly excited true modes, estimated a little differently
 # in each column, stay.
 SHARED_MODE_TOL = 0.03
 LIGHT_DAMPING = ident.LIGHT_DAMPING          # the same "resonance" as the shared-pole refinement's
