@@ -1,7 +1,7 @@
 """Bad command-line input: one line naming the argument, exit 2, no traceback, ``--out`` untouched.
 
-Every case fails before any work, so the CLI runs in this process (``main(argv)``). The cases are
-the defects of the CLI audit of d84bbf7 (montecarlo/sweep --scheduler, --weights, --seeds, an
+Every case fails before any work, so the CLI runs in this process (``main(argv)``). The cases cover
+every argument whose value the CLI reads (montecarlo/sweep --scheduler, --weights, --seeds, an
 uncreatable --out, file contents, compare --controllers, --mjcf, view --controller, tampered run
 folders, --param, an empty --out); each names the argument the message must hold.
 """

@@ -29,7 +29,8 @@ from nanosim.plant.noise import stream_seed
 from nanosim.plant.stage import StageConfig, Trace, run_open_loop_batch
 from nanosim.ramps import raised_cosine
 
-__all__ = ["IdentifySettings", "IdentifiedStage", "run_experiments", "assemble", "identify_stage", "merged_modes",
+__all__ = ["IdentifySettings", "IdentifiedStage", "run_experiments", "assemble", "identify_stage", "twin_runner",
+           "identify_on_twin", "merged_modes",
            "unshared_resonances_hz", "without_resonances", "SHARED_MODE_TOL", "LIGHT_DAMPING"]
 
 AXES, ACTS = C.AXES, C.ACTUATORS
@@ -140,6 +141,68 @@ def identify_stage(settings: IdentifySettings = IdentifySettings(), model=None, 
         progress("experiments simulated")
     with single_threaded_blas():        # same bits on any core count (tall QR and least squares)
         return _identify(settings, n0, tr_e, tr_v)
+
+
+def twin_runner(twin, model):
+    """A record runner (the call of :func:`~nanosim.plant.stage.run_open_loop_batch`) on a linear twin.
+
+    Each record runs on a :class:`~nanosim.plant.batch.BatchTwinStage` of ``twin`` in the electromechanics of
+    the record's ``config`` (DAC, amplifier, piezo, sensors, noise), from the table's home position of ``model``
+    and with its floor model, so the twin's records differ from MuJoCo's only by the mechanics' linearization.
+
+    Parameters
+    ----------
+    twin : nanosim.plant.linearize.LinearTwin
+        The linearized mechanics.
+    model : mujoco.MjModel
+        The stage the twin linearizes (its home position and floor model).
+
+    Returns
+    -------
+    callable
+        ``runner(u_batch, *, seeds, config=None, model=None)``, for :func:`identify_stage`'s ``runner``.
+    """
+    from nanosim.plant.batch import BatchTwinStage
+    from nanosim.plant.floor import floor_model
+    from nanosim.plant.stage import Stage
+
+    home_um, floor = Stage(model=model).table_um.copy(), floor_model(model)
+
+    def runner(u_batch, *, seeds, config=None, model=None):
+        return BatchTwinStage(twin, seeds, config=config, home_um=home_um, floor_models=floor).run(u_batch)
+
+    return runner
+
+
+def identify_on_twin(model=None, settings: IdentifySettings = IdentifySettings(), progress=None) -> tuple:
+    """Identify the stage on its linear twin: the experiments of :func:`identify_stage`, mechanics linearized.
+
+    The ideal stage of ``model`` (:meth:`~nanosim.plant.stage.StageConfig.ideal`, every electromechanical
+    effect off) is linearized by MuJoCo (:func:`~nanosim.plant.linearize.linearize`); the identification
+    experiments then run on that twin in the full electromechanics (:func:`twin_runner`), a fraction of
+    MuJoCo's cost, and the records are identified as :func:`identify_stage` identifies MuJoCo's.
+
+    Parameters
+    ----------
+    model : mujoco.MjModel, optional
+        The stage (default: the bundled MJCF).
+    settings : IdentifySettings
+        Seed, bands and orders of the identification.
+    progress : callable, optional
+        Called with one status line when the experiments are simulated.
+
+    Returns
+    -------
+    IdentifiedStage, nanosim.plant.linearize.LinearTwin
+        The identified model and the twin it was identified on.
+    """
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.stage import Stage
+
+    model = load_model() if model is None else model
+    twin = linearize(Stage(config=StageConfig.ideal(), model=model))
+    return identify_stage(settings, model=model, progress=progress, runner=twin_runner(twin, model)), twin
 
 
 def _identify(settings: IdentifySettings, n0: int, tr_e, tr_v) -> IdentifiedStage:
