@@ -30,7 +30,7 @@ from nanosim.plant.stage import StageConfig, Trace, run_open_loop_batch
 from nanosim.ramps import raised_cosine
 
 __all__ = ["IdentifySettings", "IdentifiedStage", "run_experiments", "assemble", "identify_stage", "twin_runner",
-           "identify_on_twin", "merged_modes",
+           "identify_on_twin", "merge_close_modes", "merged_modes",
            "unshared_resonances_hz", "without_resonances", "SHARED_MODE_TOL", "LIGHT_DAMPING"]
 
 AXES, ACTS = C.AXES, C.ACTUATORS
@@ -315,11 +315,15 @@ def without_resonances(col, freqs_hz, u, y):
     return dataclasses.replace(col, A=A1, B=B1, C=C1, D=D1, K=K1, x0=x0, order=int(k))
 
 
-def merged_modes(result: IdentifiedStage, tol: float = 0.004):
-    """Modes seen in the columns, merged when within ``tol`` relative frequency."""
-    all_modes = sorted((f, z) for m in result.modes for f, z in zip(m["freq_hz"], m["damping_ratio"]) if f > 20)
-    merged = []
-    for f, z in all_modes:
+def merge_close_modes(pairs, tol: float = 0.004) -> list[dict]:
+    """Merge ``(frequency Hz, damping ratio)`` pairs that are the same mode seen more than once.
+
+    The pairs are sorted by frequency; a pair within ``tol`` relative frequency of the previous one joins its
+    group (a chain, so a group may span more than ``tol`` end to end). Each group is one mode at the median
+    frequency and damping ratio of its pairs, with ``seen_in_columns`` the number of pairs.
+    """
+    merged: list[tuple[list, list]] = []
+    for f, z in sorted((float(f), float(z)) for f, z in pairs):
         if merged and abs(f - merged[-1][0][-1]) <= tol * f:
             merged[-1][0].append(f)
             merged[-1][1].append(z)
@@ -327,3 +331,9 @@ def merged_modes(result: IdentifiedStage, tol: float = 0.004):
             merged.append(([f], [z]))
     return [{"freq_hz": float(np.median(fs)), "damping_ratio": float(np.median(zs)), "seen_in_columns": len(fs)}
             for fs, zs in merged]
+
+
+def merged_modes(result: IdentifiedStage, tol: float = 0.004):
+    """Modes above 20 Hz seen in the columns, merged when within ``tol`` (:func:`merge_close_modes`)."""
+    return merge_close_modes(((f, z) for m in result.modes for f, z in zip(m["freq_hz"], m["damping_ratio"])
+                              if f > 20), tol)
