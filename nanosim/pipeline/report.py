@@ -363,8 +363,6 @@ def pass_count(run_dir) -> tuple[int, int]:
     return sum(1 for r in rows if r[5] is True), sum(1 for r in rows if r[5] is not None)
 
 
-
-
 def _blocks(run: Path):
     """The report as blocks: ("h", level, text), ("p", text), ("ul", items), ("table", header, rows, marks)."""
     rows = _rows(run)
