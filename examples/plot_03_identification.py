@@ -10,23 +10,11 @@ experiments on the MuJoCo stage.
 """
 import numpy as np
 
-from nanosim import IdentifySettings, Stage, StageConfig, identify_stage, linearize, load_model
+from nanosim import IdentifySettings, identify_on_twin
 from nanosim.paper import PAPER_FIT_PERCENT
-from nanosim.plant.batch import BatchTwinStage
-from nanosim.plant.floor import floor_model
 from nanosim.plots.identify import figure_bode_grid
 
-model = load_model()
-twin = linearize(Stage(config=StageConfig.ideal(), model=model))
-home_um, floor = Stage(model=model).table_um.copy(), floor_model(model)
-
-
-def twin_runner(u_batch, *, seeds, config=None, model=None):
-    """``run_open_loop_batch``'s call, on the linear twin with the bench electronics."""
-    return BatchTwinStage(twin, seeds, config=config, home_um=home_um, floor_models=floor).run(u_batch)
-
-
-ident = identify_stage(IdentifySettings(seed=0), model=model, runner=twin_runner)
+ident, twin = identify_on_twin(settings=IdentifySettings(seed=0))      # the bundled stage, on its linear twin
 print("identified model:", ident.sysd.nstates, "states")
 poles = ident.sysc.poles()
 light = poles[(poles.imag > 0) & (-poles.real < 0.05 * np.abs(poles))]

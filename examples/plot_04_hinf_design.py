@@ -7,25 +7,12 @@ gain matched, mixed-sensitivity H-infinity synthesis with the weights ``Wp``, ``
 and the 4 kHz discretization. The model is identified on the linear twin, as in the identification example.
 ``nanosim design --architecture hinf --paper-design`` does the same on a run's ``model.npz``.
 """
-from nanosim import (IdentifySettings, Stage, StageConfig, design_hinf, discretize_controller, identify_stage,
-                     linearize, load_model, reduce_model)
+from nanosim import IdentifySettings, design_hinf, discretize_controller, identify_on_twin, reduce_model
 from nanosim.design import paper_weights
 from nanosim.paper import PAPER_CONTROLLER_ORDER, PAPER_GAMMA
-from nanosim.plant.batch import BatchTwinStage
-from nanosim.plant.floor import floor_model
 from nanosim.plots.design import plot_hankel, plot_sensitivity, plot_weights
 
-model = load_model()
-twin = linearize(Stage(config=StageConfig.ideal(), model=model))
-home_um, floor = Stage(model=model).table_um.copy(), floor_model(model)
-
-
-def twin_runner(u_batch, *, seeds, config=None, model=None):
-    """``run_open_loop_batch``'s call, on the linear twin with the bench electronics."""
-    return BatchTwinStage(twin, seeds, config=config, home_um=home_um, floor_models=floor).run(u_batch)
-
-
-ident = identify_stage(IdentifySettings(seed=0), model=model, runner=twin_runner)
+ident, twin = identify_on_twin(settings=IdentifySettings(seed=0))      # the bundled stage, on its linear twin
 
 # %%
 # Balanced truncation: the Hankel singular values say how many states carry the response.

@@ -9,24 +9,11 @@ and output, loop-at-a-time and multiloop disk margins, the least damped closed-l
 real/complex mu upper bound over the stage's uncertainty set (piezo gain per channel, each mode's frequency
 and damping, an extra sample of delay). ``mu_peak < 1`` proves stability of every plant in the set.
 """
-from nanosim import (IdentifySettings, Stage, StageConfig, design_hinf, discretize_controller, identify_stage,
-                     linearize, load_model, reduce_model)
+from nanosim import IdentifySettings, Stage, design_hinf, discretize_controller, identify_on_twin, reduce_model
 from nanosim.design import STAGE_UNCERTAINTY, LoopPlant, analyze_controller
-from nanosim.plant.batch import BatchTwinStage
-from nanosim.plant.floor import floor_model
 from nanosim.plots.robustness import plot_disk_margins, plot_loop_singular_values
 
-model = load_model()
-twin = linearize(Stage(config=StageConfig.ideal(), model=model))
-home_um, floor = Stage(model=model).table_um.copy(), floor_model(model)
-
-
-def twin_runner(u_batch, *, seeds, config=None, model=None):
-    """``run_open_loop_batch``'s call, on the linear twin with the bench electronics."""
-    return BatchTwinStage(twin, seeds, config=config, home_um=home_um, floor_models=floor).run(u_batch)
-
-
-ident = identify_stage(IdentifySettings(seed=0), model=model, runner=twin_runner)
+ident, twin = identify_on_twin(settings=IdentifySettings(seed=0))      # the bundled stage, on its linear twin
 d = design_hinf(reduce_model(ident.sysc, order=10).G_reduced)
 Kd = discretize_controller(d.K).Kd
 print(STAGE_UNCERTAINTY)

@@ -15,28 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from nanosim import (IdentifySettings, Stage, StageConfig, design_hinf, discretize_controller, identify_stage,
-                     linearize, load_model, reduce_model)
+from nanosim import IdentifySettings, design_hinf, discretize_controller, identify_on_twin, reduce_model
 from nanosim.fileio import write_npz
 from nanosim.pipeline.config import MonteCarloConfig
 from nanosim.pipeline.mc_stats import default_spec
 from nanosim.pipeline.montecarlo import load_sample_flats, run_montecarlo
-from nanosim.plant.batch import BatchTwinStage
-from nanosim.plant.floor import floor_model
 from nanosim.plant.tolerances import default_tolerances
 from nanosim.plots.montecarlo import fig_histograms
 
-model = load_model()
-twin = linearize(Stage(config=StageConfig.ideal(), model=model))
-home_um, floor = Stage(model=model).table_um.copy(), floor_model(model)
-
-
-def twin_runner(u_batch, *, seeds, config=None, model=None):
-    """``run_open_loop_batch``'s call, on the linear twin with the bench electronics."""
-    return BatchTwinStage(twin, seeds, config=config, home_um=home_um, floor_models=floor).run(u_batch)
-
-
-ident = identify_stage(IdentifySettings(seed=0), model=model, runner=twin_runner)
+ident, twin = identify_on_twin(settings=IdentifySettings(seed=0))      # the bundled stage, on its linear twin
 Kd = discretize_controller(design_hinf(reduce_model(ident.sysc, order=10).G_reduced).K).Kd
 
 for t in list(default_tolerances().tolerances)[:6]:

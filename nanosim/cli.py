@@ -631,7 +631,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--run", required=True, metavar="DIR", help="run folder written by nanosim (with manifest.json)")
     r.set_defaults(func=_cmd_report)
     ab = sub.add_parser("ablation", help="the paper's controller with each stage-model element switched off or "
-                                         "changed (issue 12): adds ablation.json and its table to a run's report")
+                                         "changed, to show what each contributes: adds ablation.json and its table "
+                                         "to a run's report")
     ab.add_argument("--run", required=True, metavar="DIR", help="run folder written by nanosim (its seed is used)")
     ab.add_argument("--rows", nargs="+", default=None, metavar="ROW",
                     help="names of the rows to run (default all; an unknown name lists them)")

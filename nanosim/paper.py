@@ -141,7 +141,7 @@ class Band:
         return not (self.high is not None and (v >= self.high if self.strict else v > self.high))
 
 
-# Acceptance bands of the issues (the report's "ok" column), each with its text.
+# Acceptance bands on the paper's quantities (the report's "ok" column), each with its text.
 BANDS = {
     "fit_percent": Band(low=90.0, text=">= 90 %"),
     "gamma": Band(high=1.5, text="<= 1.5"),

@@ -33,7 +33,7 @@ LONGEST_FILES = ("test_cli.py",                 # ~310 s, the pipeline end to en
                  "test_bench_controllers.py",   # ~155 s
                  "test_stage.py",               # ~150 s
                  "test_damping.py",             # ~90 s
-                 "test_hardening.py",           # ~80 s
+                 "test_run_folders.py", "test_cli_arguments.py",   # the CLI's edges in subprocesses
                  "test_ablation.py",            # ~75 s
                  "test_montecarlo.py", "test_lqg.py", "test_sysid_orders.py", "test_identify_stage.py",
                  "test_design.py")

@@ -1,7 +1,7 @@
 """Bad command-line input: one line naming the argument, exit 2, no traceback, ``--out`` untouched.
 
-Every case fails before any work, so the CLI runs in this process (``main(argv)``). The cases are
-the defects of the CLI audit of d84bbf7 (montecarlo/sweep --scheduler, --weights, --seeds, an
+Every case fails before any work, so the CLI runs in this process (``main(argv)``). The cases cover
+every argument whose value the CLI reads (montecarlo/sweep --scheduler, --weights, --seeds, an
 uncreatable --out, file contents, compare --controllers, --mjcf, view --controller, tampered run
 folders, --param, an empty --out); each names the argument the message must hold.
 """
@@ -34,13 +34,13 @@ def _sealed_mc(folder: Path, ctrl: Path) -> Path:
     from nanosim.pipeline import mc_stats
     from nanosim.pipeline.config import MonteCarloConfig
     from nanosim.pipeline.artifacts import MONTECARLO_JSON as PLAN_JSON
-    from nanosim.pipeline.montecarlo import _plan
+    from nanosim.pipeline.montecarlo import montecarlo_plan
     from nanosim.plant.mjcf import load_model
     from nanosim.plant.tolerances import default_tolerances
 
     names = list(experiments.load_builtin())
     tm = default_tolerances(load_model())
-    plan = _plan(ctrl.resolve(), MonteCarloConfig(n=1, seed=0), names, tm.to_dict())
+    plan = montecarlo_plan(ctrl.resolve(), MonteCarloConfig(n=1, seed=0), names, tm.to_dict())
     folder.mkdir()
     write_json(folder / PLAN_JSON, {"identity": plan["identity"], "n": 1, "mjcf": None, "experiments": names})
     write_json(folder / "tolerances.json", tm.to_dict())

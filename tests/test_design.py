@@ -128,10 +128,9 @@ def test_weights_roundtrip_json_toml(tmp_path):
 
 
 def test_weights_from_paper_targets_json():
+    """The paper's weights, read from the project's copy of paper_targets.json, are PAPER_WEIGHTS."""
     import pathlib
-    path = pathlib.Path("/work/shared/reference/paper_targets.json")
-    if not path.is_file():
-        pytest.skip("shared paper_targets.json not available")
+    path = pathlib.Path(__file__).parent / "data" / "shared" / "reference" / "paper_targets.json"
     assert Weights.from_file(path) == PAPER_WEIGHTS
 
 

@@ -4,7 +4,8 @@ import pytest
 from numpy.testing import assert_allclose
 
 import identification as ident
-from nanosim.experiments.sysid import IdentifySettings, assemble, identify_stage
+from nanosim import constants as C
+from nanosim.experiments.sysid import IdentifySettings, assemble, identify_on_twin, identify_stage
 from nanosim.paper import STAGE_MODES_HZ
 from nanosim.plant.mjcf import load_model
 from nanosim.plant.modes import modal_analysis
@@ -51,6 +52,26 @@ def test_ideal_stage_dc_gain_matches_static_gain(ideal_result):
     truth = modal_analysis(load_model()).static_gain_um_per_V / 5.0          # sensor V per controller V
     dc = np.real(np.asarray(ideal_result.sysd.dcgain()))
     assert_allclose(dc, truth, atol=0.006 * np.abs(truth).max())
+
+
+def test_identify_on_twin_finds_the_modes_of_the_stage(model):
+    """Noise-free records of the ideal stage's linear twin: the twin's static gain is MuJoCo's (the
+    linearization is exact at DC), and every mode below 1 kHz that a column's actuator drives (participation
+    at least 1 % of the mode's largest) is identified in that column within 1e-4 of MuJoCo's modal analysis,
+    as on the MuJoCo stage itself."""
+    result, twin = identify_on_twin(model, IdentifySettings(seed=0, order_per_column=14, ideal=True))
+    truth = modal_analysis(model)
+    gain_V = truth.static_gain_um_per_V / C.SENSOR_UM_PER_V                    # sensor V per controller V
+    assert_allclose(np.real(np.asarray(twin.sys_V.dcgain())), gain_V, rtol=0, atol=1e-6 * np.abs(gain_V).max())
+    n_checked = 0
+    for j, col in enumerate(result.columns):
+        m = ident.modes_from_model(col.A, col.dt_s)
+        for mode in truth.below(1000.0):
+            if mode.actuator_participation[j] < 0.01 * max(mode.actuator_participation):
+                continue
+            n_checked += 1
+            assert np.min(np.abs(m.freq_hz - mode.freq_hz)) <= 1e-4 * mode.freq_hz, (mode.freq_hz, m.freq_hz)
+    assert n_checked == 17                               # 6 modes x 3 columns, less the tilt's node at chain c
 
 
 def test_assembled_model_is_block_diagonal_of_columns(ideal_result):

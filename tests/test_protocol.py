@@ -7,6 +7,7 @@ import pytest
 from nanosim import experiments
 from nanosim.design.controller import ControllerConfig, DiscreteController
 from nanosim.experiments import bandwidth as bw_mod
+from nanosim.experiments import registry
 from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
 from nanosim.experiments.loop import FS, LOOP_PROTOCOL, LoopProtocol, run_closed_loop
 from nanosim.experiments.registry import ExperimentContext
@@ -144,7 +145,7 @@ def test_the_step_after_the_prbs_record_equals_a_step_with_a_fresh_controller(se
 def test_bandwidth_reports_each_step_case_and_the_worst(setup):
     cfg = _integrator(setup["G0"], f_hz=5.0, leak=1.0)
     r = bw_mod.bandwidth(setup["factory"], DiscreteController(cfg), seed=0, duration_s=1.1, holds_s=(0.05, 0.1))
-    m = bw_mod._metrics(r)
+    m = registry.get("bandwidth").metrics(r)                      # what metrics.json holds
     assert len(m["step_2um_cases"]) == 8
     assert {(c["axis"], c["sign"], c["hold_s"]) for c in m["step_2um_cases"]} == \
         {(a, s, h) for a in "XY" for s in (1, -1) for h in (0.05, 0.1)}

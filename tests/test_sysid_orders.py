@@ -18,8 +18,8 @@ import pytest
 
 import identification as ident
 
-from nanosim.experiments.sysid import (IdentifySettings, identify_stage, merged_modes, unshared_resonances_hz,
-                                       without_resonances)
+from nanosim.experiments.sysid import (IdentifySettings, identify_stage, merge_close_modes, merged_modes,
+                                       unshared_resonances_hz, without_resonances)
 from nanosim.plant.mjcf import load_model
 from nanosim.plant.modes import modal_analysis
 
@@ -102,3 +102,14 @@ def test_identified_modes_are_the_stages_and_no_column_has_its_own():
     for col in res.columns:
         fc = ident.modes_from_model(col.A, col.dt_s).freq_hz
         assert all(np.min(np.abs(fc - f)) < 1e-9 * f for f in sh.freq_hz if np.min(np.abs(fc - f)) < 0.01 * f)
+
+
+def test_merge_close_modes_groups_a_chain_within_the_tolerance():
+    """Pairs within 0.4 % of their neighbour are one mode at the median frequency and damping; a chain of such
+    neighbours is one group, a pair farther off starts another."""
+    pairs = [(200.0, 0.02), (100.3, 0.03), (100.0, 0.01), (100.1, 0.02), (101.0, 0.05)]
+    got = merge_close_modes(pairs, tol=0.004)
+    assert got == [{"freq_hz": 100.1, "damping_ratio": 0.02, "seen_in_columns": 3},        # 100.3 - 100.1 < 0.40
+                   {"freq_hz": 101.0, "damping_ratio": 0.05, "seen_in_columns": 1},        # 101.0 - 100.3 > 0.40
+                   {"freq_hz": 200.0, "damping_ratio": 0.02, "seen_in_columns": 1}]
+    assert merge_close_modes([]) == []

@@ -10,9 +10,9 @@ are computed on a separate validation record (another PRBS seed).
 Beyond the paper (``IdentifySettings.shared_poles``, default on): a resonance
 belongs to the structure, so the lightly damped poles that several columns
 share are re-estimated jointly from all three records, one pole per mode
-(:func:`identification.refine_shared_poles`). A column that barely excites a
-mode no longer sets it alone: actuator C's estimate of the 462/472 Hz pair was
-0.4-0.7 % high with zeta 0.011-0.015 (MuJoCo: 0.004) on seeds 1, 2 and 4.
+(:func:`identification.refine_shared_poles`), so a column that barely excites a
+mode does not set its frequency and damping alone: its estimate, from a record
+with little energy near the mode, is biased high in both.
 """
 from __future__ import annotations
 
@@ -29,7 +29,8 @@ from nanosim.plant.noise import stream_seed
 from nanosim.plant.stage import StageConfig, Trace, run_open_loop_batch
 from nanosim.ramps import raised_cosine
 
-__all__ = ["IdentifySettings", "IdentifiedStage", "run_experiments", "assemble", "identify_stage", "merged_modes",
+__all__ = ["IdentifySettings", "IdentifiedStage", "run_experiments", "assemble", "identify_stage", "twin_runner",
+           "identify_on_twin", "merge_close_modes", "merged_modes",
            "unshared_resonances_hz", "without_resonances", "SHARED_MODE_TOL", "LIGHT_DAMPING"]
 
 AXES, ACTS = C.AXES, C.ACTUATORS
@@ -142,6 +143,68 @@ def identify_stage(settings: IdentifySettings = IdentifySettings(), model=None, 
         return _identify(settings, n0, tr_e, tr_v)
 
 
+def twin_runner(twin, model):
+    """A record runner (the call of :func:`~nanosim.plant.stage.run_open_loop_batch`) on a linear twin.
+
+    Each record runs on a :class:`~nanosim.plant.batch.BatchTwinStage` of ``twin`` in the electromechanics of
+    the record's ``config`` (DAC, amplifier, piezo, sensors, noise), from the table's home position of ``model``
+    and with its floor model, so the twin's records differ from MuJoCo's only by the mechanics' linearization.
+
+    Parameters
+    ----------
+    twin : nanosim.plant.linearize.LinearTwin
+        The linearized mechanics.
+    model : mujoco.MjModel
+        The stage the twin linearizes (its home position and floor model).
+
+    Returns
+    -------
+    callable
+        ``runner(u_batch, *, seeds, config=None, model=None)``, for :func:`identify_stage`'s ``runner``.
+    """
+    from nanosim.plant.batch import BatchTwinStage
+    from nanosim.plant.floor import floor_model
+    from nanosim.plant.stage import Stage
+
+    home_um, floor = Stage(model=model).table_um.copy(), floor_model(model)
+
+    def runner(u_batch, *, seeds, config=None, model=None):
+        return BatchTwinStage(twin, seeds, config=config, home_um=home_um, floor_models=floor).run(u_batch)
+
+    return runner
+
+
+def identify_on_twin(model=None, settings: IdentifySettings = IdentifySettings(), progress=None) -> tuple:
+    """Identify the stage on its linear twin: the experiments of :func:`identify_stage`, mechanics linearized.
+
+    The ideal stage of ``model`` (:meth:`~nanosim.plant.stage.StageConfig.ideal`, every electromechanical
+    effect off) is linearized by MuJoCo (:func:`~nanosim.plant.linearize.linearize`); the identification
+    experiments then run on that twin in the full electromechanics (:func:`twin_runner`), a fraction of
+    MuJoCo's cost, and the records are identified as :func:`identify_stage` identifies MuJoCo's.
+
+    Parameters
+    ----------
+    model : mujoco.MjModel, optional
+        The stage (default: the bundled MJCF).
+    settings : IdentifySettings
+        Seed, bands and orders of the identification.
+    progress : callable, optional
+        Called with one status line when the experiments are simulated.
+
+    Returns
+    -------
+    IdentifiedStage, nanosim.plant.linearize.LinearTwin
+        The identified model and the twin it was identified on.
+    """
+    from nanosim.plant.linearize import linearize
+    from nanosim.plant.mjcf import load_model
+    from nanosim.plant.stage import Stage
+
+    model = load_model() if model is None else model
+    twin = linearize(Stage(config=StageConfig.ideal(), model=model))
+    return identify_stage(settings, model=model, progress=progress, runner=twin_runner(twin, model)), twin
+
+
 def _identify(settings: IdentifySettings, n0: int, tr_e, tr_v) -> IdentifiedStage:
     """The models of :func:`identify_stage` from its records."""
     est = [_deviation(tr_e[j], n0, j, settings.offset_V) for j in range(3)]
@@ -179,8 +242,8 @@ def _identify(settings: IdentifySettings, n0: int, tr_e, tr_v) -> IdentifiedStag
 # actuator on a nodal line of a mode (actuator A of the v1 stage, for the 176.3 and 464.5 Hz modes)
 # leaves it to the other columns. A lightly damped pair that no other column has within the modal
 # frequency uncertainty (3 %) is therefore not a mode of the stage but the column's spare states
-# (paper order 13 for a column with fewer modes) fitting noise, creep and hysteresis: the 11.9 Hz
-# pole-zero pair of column A (issue 13). Weakly excited true modes, estimated a little differently
+# (paper order 13 for a column with fewer modes) fitting noise, creep and hysteresis, such as a
+# low-frequency pole-zero pair that only one column has. Weakly excited true modes, estimated a little differently
 # in each column, stay.
 SHARED_MODE_TOL = 0.03
 LIGHT_DAMPING = ident.LIGHT_DAMPING          # the same "resonance" as the shared-pole refinement's
@@ -252,11 +315,15 @@ def without_resonances(col, freqs_hz, u, y):
     return dataclasses.replace(col, A=A1, B=B1, C=C1, D=D1, K=K1, x0=x0, order=int(k))
 
 
-def merged_modes(result: IdentifiedStage, tol: float = 0.004):
-    """Modes seen in the columns, merged when within ``tol`` relative frequency."""
-    all_modes = sorted((f, z) for m in result.modes for f, z in zip(m["freq_hz"], m["damping_ratio"]) if f > 20)
-    merged = []
-    for f, z in all_modes:
+def merge_close_modes(pairs, tol: float = 0.004) -> list[dict]:
+    """Merge ``(frequency Hz, damping ratio)`` pairs that are the same mode seen more than once.
+
+    The pairs are sorted by frequency; a pair within ``tol`` relative frequency of the previous one joins its
+    group (a chain, so a group may span more than ``tol`` end to end). Each group is one mode at the median
+    frequency and damping ratio of its pairs, with ``seen_in_columns`` the number of pairs.
+    """
+    merged: list[tuple[list, list]] = []
+    for f, z in sorted((float(f), float(z)) for f, z in pairs):
         if merged and abs(f - merged[-1][0][-1]) <= tol * f:
             merged[-1][0].append(f)
             merged[-1][1].append(z)
@@ -264,3 +331,9 @@ def merged_modes(result: IdentifiedStage, tol: float = 0.004):
             merged.append(([f], [z]))
     return [{"freq_hz": float(np.median(fs)), "damping_ratio": float(np.median(zs)), "seen_in_columns": len(fs)}
             for fs, zs in merged]
+
+
+def merged_modes(result: IdentifiedStage, tol: float = 0.004):
+    """Modes above 20 Hz seen in the columns, merged when within ``tol`` (:func:`merge_close_modes`)."""
+    return merge_close_modes(((f, z) for m in result.modes for f, z in zip(m["freq_hz"], m["damping_ratio"])
+                              if f > 20), tol)

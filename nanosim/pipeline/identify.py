@@ -19,7 +19,8 @@ import numpy as np
 
 import identification as ident
 from nanosim import constants as C
-from nanosim.experiments.sysid import IdentifiedStage, IdentifySettings, identify_stage, merged_modes
+from nanosim.experiments.sysid import (IdentifiedStage, IdentifySettings, identify_stage, merge_close_modes,
+                                      merged_modes)
 from nanosim.fileio import save_figure, write_json, write_npz
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import IdentifyConfig
@@ -67,16 +68,7 @@ def tustin_modes(result: IdentifiedStage, tol: float = 0.004, zeta_max: float = 
     drift poles.
     """
     m = ident.modes_from_model(np.asarray(result.sysc.A, float))
-    pairs = sorted((float(f), float(z)) for f, z in zip(m.freq_hz, m.damping) if f > 20.0 and z < zeta_max)
-    merged: list[tuple[list, list]] = []
-    for f, z in pairs:
-        if merged and abs(f - merged[-1][0][-1]) <= tol * f:
-            merged[-1][0].append(f)
-            merged[-1][1].append(z)
-        else:
-            merged.append(([f], [z]))
-    return [{"freq_hz": float(np.median(fs)), "damping_ratio": float(np.median(zs)), "seen_in_columns": len(fs)}
-            for fs, zs in merged]
+    return merge_close_modes(((f, z) for f, z in zip(m.freq_hz, m.damping) if f > 20.0 and z < zeta_max), tol)
 
 
 def identify_json(result: IdentifiedStage, extra: dict | None = None) -> dict:

@@ -55,9 +55,9 @@ from nanosim.pipeline.runfolder import (MANIFEST_JSON, RunFolderError, check_wri
 from nanosim.pipeline.scaleout import check_scheduler, open_executor, run_tasks
 from nanosim.pipeline.timings import record_timings
 
-__all__ = ["run_montecarlo", "run_chunk", "sample_plants", "summarize", "report_markdown", "sample_units",
-           "load_sample_flats", "MAX_SAMPLES", "SAMPLE_WORKER_SECONDS", "estimate_seconds", "check_sample_count",
-           "format_duration"]
+__all__ = ["run_montecarlo", "montecarlo_plan", "run_chunk", "sample_plants", "summarize", "report_markdown",
+           "sample_units", "load_sample_flats", "MAX_SAMPLES", "SAMPLE_WORKER_SECONDS", "estimate_seconds",
+           "check_sample_count", "format_duration"]
 
 SENSITIVITY_EXTRA = ("mode_1_hz", "xy_split_percent", "disk_margin_alpha")
 SPREAD_ENGINE = "twin-spread"
@@ -260,7 +260,30 @@ def _sample_path(out: Path, sub: str, i: int) -> Path:
     return out / sub / A.mc_sample_json(i)
 
 
-def _plan(controller_path: Path, s: MonteCarloConfig, names, tm_dict) -> dict:
+def montecarlo_plan(controller_path: Path, s: MonteCarloConfig, names, tm_dict) -> dict:
+    """The plan of a Monte Carlo: what every worker needs (:func:`run_chunk`) and the identity of the run.
+
+    The ``identity`` (seed, SHA-256 of the controller file, of the MJCF or ``"bundled"``, the experiment list
+    and the SHA-256 of the tolerance set) is written into ``montecarlo.json``; a rerun into the same folder
+    resumes only when its identity is the same, so samples of two different runs never mix.
+
+    Parameters
+    ----------
+    controller_path : path
+        ``controller.npz`` (read and checked; its matrices go into the plan).
+    s : MonteCarloConfig
+        Its ``seed`` and ``mjcf`` are used.
+    names : sequence of str
+        The registered experiments each sample runs.
+    tm_dict : dict
+        The tolerance set (:meth:`nanosim.plant.tolerances.ToleranceModel.to_dict`).
+
+    Returns
+    -------
+    dict
+        ``identity``, ``seed``, ``experiments``, ``mjcf`` and ``controller`` (its discrete matrices, ``dt`` and
+        ``n_error``), JSON-ready.
+    """
     from nanosim.design.architectures.protocol import read_controller_file
 
     c = read_controller_file(controller_path, name="--controller")
@@ -324,7 +347,7 @@ def run_montecarlo(controller_path, out, settings: MonteCarloConfig | None = Non
     check_scheduler(settings.scheduler)                     # its form, before anything is written
     out = check_writable(out).resolve()
     tm = default_tolerances(load_model(settings.mjcf))
-    plan = _plan(controller_path, settings, names, tm.to_dict())
+    plan = montecarlo_plan(controller_path, settings, names, tm.to_dict())
     _check_out(out, plan)
     n_cross = min(settings.crosscheck, settings.n)
     phases = ((A.MC_SAMPLES_DIR, "twin", settings.n), (A.MC_CROSSCHECK_DIR, "mujoco", n_cross),

@@ -1,7 +1,6 @@
 """report.md and report.html: every figure and the paper-vs-simulation table of a run folder."""
 from __future__ import annotations
 
-import html
 import json
 import math
 from pathlib import Path
@@ -13,6 +12,7 @@ from nanosim.fileio import write_text
 from nanosim import paper as P
 from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S
 from nanosim.pipeline import artifacts as A
+from nanosim.pipeline.blocks import EM, to_html, to_markdown
 
 __all__ = ["architecture_section", "design_warnings", "pass_count", "write_report"]
 
@@ -363,9 +363,6 @@ def pass_count(run_dir) -> tuple[int, int]:
     return sum(1 for r in rows if r[5] is True), sum(1 for r in rows if r[5] is not None)
 
 
-_EM = "\x00"     # marks emphasis (the paper title) inside a paragraph block
-
-
 def _blocks(run: Path):
     """The report as blocks: ("h", level, text), ("p", text), ("ul", items), ("table", header, rows, marks)."""
     rows = _rows(run)
@@ -375,7 +372,7 @@ def _blocks(run: Path):
     warnings = design_warnings(des)
     stairs = _staircase_rows(run)
     out = [("h", 1, "nanosim report"),
-           ("p", f"Simulated reproduction of {_EM}Robust Control of a Parallel-Kinematic Nanopositioner{_EM} "
+           ("p", f"Simulated reproduction of {EM}Robust Control of a Parallel-Kinematic Nanopositioner{EM} "
                  "(J. Dyn. Sys., Meas., Control 130, 2008): MuJoCo stage -> identification -> H-infinity design -> "
                  f"closed-loop experiments. Plant for Sec. 5: {met.get('plant', 'n/a')}. "
                  f"{n_ok} of {n_band} checked quantities are inside their acceptance bands"
@@ -579,56 +576,6 @@ def _stage_v2_blocks(run: Path) -> list:
     return report_blocks(run)
 
 
-def _markdown(blocks) -> str:
-    md = []
-    for b in blocks:
-        if b[0] == "h":
-            md += ["#" * b[1] + " " + b[2], ""]
-        elif b[0] == "p":
-            md += [b[1].replace(_EM, "*"), ""]
-        elif b[0] == "ul":
-            md += [f"- {item}" for item in b[1]] + [""]
-        elif b[0] == "table":
-            _, header, rows, marks = b
-            md += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-            for row in rows:
-                cells = [("**NO**" if c == "NO" and k == len(row) - 1 and marks else str(c)) for k, c in enumerate(row)]
-                md.append("| " + " | ".join(cells) + " |")
-            md.append("")
-        elif b[0] == "fig":
-            md += [f"### {b[1]}", "", f"![{b[1]}]({b[2]})", ""]
-    return "\n".join(md) + "\n"
-
-
-def _html(blocks) -> str:
-    e = html.escape
-    h = ["<!doctype html><html><head><meta charset='utf-8'><title>nanosim report</title>",
-         "<style>body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}"
-         "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
-         "tr.no{background:#fde2e2}tr.yes{background:#e6f4e6}img{max-width:100%}"
-         "ul.warn li{color:#8a3b00}</style></head><body>"]
-    for b in blocks:
-        if b[0] == "h":
-            h.append(f"<h{b[1]}>{e(b[2])}</h{b[1]}>")
-        elif b[0] == "p":
-            parts = e(b[1]).split(_EM)
-            h.append("<p>" + "".join(f"<em>{t}</em>" if k % 2 else t for k, t in enumerate(parts)) + "</p>")
-        elif b[0] == "ul":
-            h.append("<ul class='warn'>" + "".join(f"<li>{e(item)}</li>" for item in b[1]) + "</ul>")
-        elif b[0] == "table":
-            _, header, rows, marks = b
-            h.append("<table><tr>" + "".join(f"<th>{e(c)}</th>" for c in header) + "</tr>")
-            for k, row in enumerate(rows):
-                ok = marks[k] if marks else None
-                cls = "" if ok is None else (" class='yes'" if ok else " class='no'")
-                h.append(f"<tr{cls}>" + "".join(f"<td>{e(str(c))}</td>" for c in row) + "</tr>")
-            h.append("</table>")
-        elif b[0] == "fig":
-            h.append(f"<h3>{e(b[1])}</h3><img src='{e(b[2])}' alt='{e(b[1])}'>")
-    h.append("</body></html>")
-    return "\n".join(h) + "\n"
-
-
 def write_report(run_dir) -> tuple[Path, Path]:
     """Write report.md and report.html into ``run_dir`` from its json files and figures.
 
@@ -638,4 +585,4 @@ def write_report(run_dir) -> tuple[Path, Path]:
     """
     run = Path(run_dir)
     blocks = _blocks(run)
-    return write_text(run / A.REPORT_MD, _markdown(blocks)), write_text(run / A.REPORT_HTML, _html(blocks))
+    return write_text(run / A.REPORT_MD, to_markdown(blocks)), write_text(run / A.REPORT_HTML, to_html(blocks))

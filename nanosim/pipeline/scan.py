@@ -16,7 +16,6 @@ section (:func:`report_blocks`).
 """
 from __future__ import annotations
 
-import html
 import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -26,6 +25,7 @@ import numpy as np
 from nanosim import constants as C
 from nanosim.experiments import scan as S
 from nanosim.fileio import save_figure, write_json, write_npz, write_text
+from nanosim.pipeline.blocks import to_html, to_markdown
 
 __all__ = ["ScanConfig", "run_scan_folder", "report_blocks", "SCAN_JSON", "SCAN_NPZ", "SCAN_FIGURES",
            "DEFAULT_SWEEP_HZ"]
@@ -241,8 +241,8 @@ def _write(out: Path, cfg, doc, results, sweep) -> None:
                   for n in cfg.patterns]
         save_figure(P.line_rate_plot(curves, cfg.limit_fraction, doc["sweep_plant"]), out / SCAN_FIGURES["sweep"])
     blocks = _blocks(doc, level=1) + [("fig", k, v) for k, v in SCAN_FIGURES.items() if (out / v).is_file()]
-    write_text(out / SCAN_MD, _markdown(blocks))
-    write_text(out / SCAN_HTML, _html(blocks))
+    write_text(out / SCAN_MD, to_markdown(blocks, figure_headings=False))
+    write_text(out / SCAN_HTML, to_html(blocks, "nanosim scan", figure_headings=False))
 
 
 def _fmt(v, digits=3) -> str:
@@ -295,38 +295,3 @@ def report_blocks(run) -> list:
     if not p.is_file():
         return []
     return _blocks(json.loads(p.read_text()))
-
-
-def _markdown(blocks) -> str:
-    md = []
-    for b in blocks:
-        if b[0] == "h":
-            md += ["#" * b[1] + " " + b[2], ""]
-        elif b[0] == "p":
-            md += [b[1], ""]
-        elif b[0] == "table":
-            md += ["| " + " | ".join(b[1]) + " |", "|" + "---|" * len(b[1])]
-            md += ["| " + " | ".join(str(c) for c in row) + " |" for row in b[2]] + [""]
-        elif b[0] == "fig":
-            md += [f"![{b[1]}]({b[2]})", ""]
-    return "\n".join(md) + "\n"
-
-
-def _html(blocks) -> str:
-    e = html.escape
-    h = ["<!doctype html><html><head><meta charset='utf-8'><title>nanosim scan</title><style>"
-         "body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}table{border-collapse:collapse;"
-         "font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}img{max-width:100%}</style></head><body>"]
-    for b in blocks:
-        if b[0] == "h":
-            h.append(f"<h{b[1]}>{e(b[2])}</h{b[1]}>")
-        elif b[0] == "p":
-            h.append(f"<p>{e(b[1])}</p>")
-        elif b[0] == "table":
-            h.append("<table><tr>" + "".join(f"<th>{e(c)}</th>" for c in b[1]) + "</tr>")
-            h += ["<tr>" + "".join(f"<td>{e(str(c))}</td>" for c in row) + "</tr>" for row in b[2]]
-            h.append("</table>")
-        elif b[0] == "fig":
-            h.append(f"<img src='{e(b[2])}' alt='{e(b[1])}'>")
-    h.append("</body></html>")
-    return "\n".join(h) + "\n"

@@ -163,8 +163,8 @@ def design_for_point(model, config: DesignConfig | None = None, seed: int = 0) -
     """The pipeline's controller for one stage, on its linear twin, in a scratch folder.
 
     The identification experiments of ``nanosim identify`` (0 V operating point) run on the
-    stage's linear twin in the full electromechanics (a :class:`~nanosim.plant.batch.BatchTwinStage`
-    as the record runner), the identified model goes to
+    stage's linear twin in the full electromechanics
+    (:func:`~nanosim.experiments.sysid.identify_on_twin`), the identified model goes to
     :func:`nanosim.pipeline.design.run_design` unchanged. Nothing is written outside the scratch
     folder, so it runs on any worker.
 
@@ -176,22 +176,12 @@ def design_for_point(model, config: DesignConfig | None = None, seed: int = 0) -
     import tempfile
 
     from nanosim.design.controller import DiscreteController
-    from nanosim.experiments.sysid import IdentifySettings, identify_stage
+    from nanosim.experiments.sysid import IdentifySettings, identify_on_twin
     from nanosim.fileio import write_npz
     from nanosim.pipeline.design import run_design
     from nanosim.pipeline.identify import save_model
-    from nanosim.plant.batch import BatchTwinStage
-    from nanosim.plant.floor import floor_model
-    from nanosim.plant.linearize import linearize
-    from nanosim.plant.stage import Stage, StageConfig
 
-    mech = linearize(Stage(config=StageConfig.ideal(), model=model))
-    home, fm = Stage(model=model).table_um.copy(), floor_model(model)
-
-    def runner(u_batch, *, seeds, config=None, model=None):        # run_open_loop_batch's call, on the twin
-        return BatchTwinStage(mech, seeds, config=config, home_um=home, floor_models=fm).run(u_batch)
-
-    ident = identify_stage(IdentifySettings(seed=seed), model=model, runner=runner)
+    ident, mech = identify_on_twin(model, IdentifySettings(seed=seed))
     with tempfile.TemporaryDirectory(prefix="nanosim-sweep-") as tmp:
         tmp = Path(tmp)
         save_model(tmp / A.MODEL_NPZ, ident)

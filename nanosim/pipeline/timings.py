@@ -4,7 +4,7 @@ The result files (``metrics.json``, ``design.json``, Monte Carlo samples, sweep 
 ``scorecard.json``, ...) hold only what the inputs and the seed determine, so two runs
 with the same seed give the same bytes. The wall-clock times the commands measure go to
 one ``timings.json`` per run folder (:data:`nanosim.pipeline.artifacts.TIMINGS_JSON`), under
-the path of the result file they used to be part of, with the same field names::
+the path of the result file they describe, with that file's field names::
 
     {"units": "...",
      "files": {"design.json": {"timings_s": {...}},
