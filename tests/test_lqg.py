@@ -113,10 +113,10 @@ def test_design_config_exports_the_four_block_hinf_by_default_and_the_paper_desi
 
 
 def test_nominal_lqg_vertex_check_records_the_worst_vertex(model):
-    """Brute force over STAGE_UNCERTAINTY (96 plants): every plant without the extra sample is stable, and the
-    recorded worst vertex is the loop closed by hand at that vertex."""
-    from nanosim.design.architectures.common import uncertainty_vertex_check
-    from nanosim.design.uncertainty import ModalPlant, UncertaintySet
+    """Brute force over STAGE_UNCERTAINTY (96 plants): the nominal rule, designed on the identified model alone,
+    is not stable over the whole set (why the exported rule is the robust one), and the recorded worst vertex is
+    the loop closed by hand at that vertex."""
+    from nanosim.design.uncertainty import ModalPlant
     d = design_lqg(model, robust=False)
     Ke, Ky = d.split()
     v = d.parameters["uncertainty_vertices"]
@@ -126,8 +126,7 @@ def test_nominal_lqg_vertex_check_records_the_worst_vertex(model):
     P = ModalPlant(model, DT_S).state_space(w["freq_scale"], w["damping_scale"], np.array(w["input_gain"]),
                                             w["extra_delay_samples"])
     assert closed_loop_spectral_radius(P, Ke, Ky, 0) == pytest.approx(v["worst_spectral_radius"], rel=1e-9)
-    no_extra = uncertainty_vertex_check(model, Ke, Ky, UncertaintySet(extra_delay_samples_range=(0, 0)))
-    assert no_extra["all_stable"] and no_extra["worst_spectral_radius"] < 1.0, no_extra
+    assert v["all_stable"] is False and v["n_unstable"] > 0 and v["worst_spectral_radius"] > 1.0, v
 
 
 def test_shifted_modes_moves_only_the_modes_above_300_hz_and_keeps_each_dc_gain(model):
@@ -233,8 +232,8 @@ def test_a_robust_rule_no_member_meets_says_so(model, monkeypatch):
 
 def test_gain_range_rule_no_member_meets_takes_the_largest_margin_at_the_top(model, monkeypatch):
     """The gain-range rule with the design model at the identified gain against a set whose gain reaches 3 x the
-    identified one, where no member keeps the margin: it says so (a warning naming the top, robust_rule_met False) and takes the member with the
-    largest margin there, still with the margin at the identified gain."""
+    identified one, where no member keeps the margin: it says so (a warning naming the top, robust_rule_met False)
+    and takes the member with the largest margin there, still with the margin at the identified gain."""
     from nanosim.design.architectures import lqg
     from nanosim.design.architectures.lqg import ROBUST_MIN_DISK_MARGIN
     monkeypatch.setattr(lqg, "design_input_gains", lambda gains: tuple(3.0 * float(g) for g in gains))
@@ -243,7 +242,8 @@ def test_gain_range_rule_no_member_meets_takes_the_largest_margin_at_the_top(mod
     p = d.parameters
     assert p["robust_rule_met"] is False and p["gain_range_margin"] is True and p["mu_peak"] is None
     tops = [r["multiloop_disk_margin_top"] for r in p["tried"] if "multiloop_disk_margin_top" in r]
-    assert tops and max(tops) < ROBUST_MIN_DISK_MARGIN and p["predicted_disk_margin_top_of_gain_range"]["multiloop"] == max(tops)
+    assert tops and max(tops) < ROBUST_MIN_DISK_MARGIN
+    assert p["predicted_disk_margin_top_of_gain_range"]["multiloop"] == max(tops)
     assert p["predicted_disk_margin"]["multiloop"] >= ROBUST_MIN_DISK_MARGIN
 
 
