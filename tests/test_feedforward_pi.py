@@ -98,3 +98,44 @@ def test_errors_name_the_argument(args, name):
 def test_feedforward_rejects_a_linear_piezo():
     with pytest.raises(ValueError, match="piezo"):
         InversePIFeedforward(PiezoConfig.linear())
+
+
+@pytest.fixture(scope="module")
+def hinf_controller(twin):
+    """The paper's mixed-sensitivity design on the reduced linear twin (no identification needed)."""
+    from nanosim.design import design_hinf, discretize_controller, reduce_model
+    from nanosim.design.controller import DiscreteController
+
+    red = reduce_model(twin.sys_V, order=10)
+    kd = discretize_controller(design_hinf(red.G_reduced, G_full=twin.sys_V).K, dt=C.CONTROL_PERIOD_S).Kd
+    return lambda: DiscreteController.from_matrices(kd.A, kd.B, kd.C, kd.D, C.CONTROL_PERIOD_S)
+
+
+def test_fig14_loop_width_and_closed_loop_error_drop_with_the_inverse_on_the_twin(twin, hinf_controller):
+    """Thermal operators: the rate-independent inverse leaves the creep and the rate dependence."""
+    from nanosim.experiments.hysteresis import hysteresis
+    from nanosim.plant.twin import TwinStage
+
+    factory = lambda s: TwinStage(twin, seed=s)
+    plain = hysteresis(factory, hinf_controller(), seed=0)
+    comp = hysteresis(factory, hinf_controller(), seed=0, feedforward="inverse-pi")
+    assert comp.feedforward == "inverse-pi"
+    assert plain.open_loop_percent > 10.0                       # the Fig. 14 loop, ~15 %
+    assert comp.open_loop_percent < plain.open_loop_percent / 4
+    assert comp.open_loop_percent < 3.5
+    rms = lambda r: float(np.sqrt(np.mean(r.closed.error_um[:, 0] ** 2)))
+    assert rms(comp) < 0.95 * rms(plain)                        # feedback on a linearised actuator
+
+
+def test_feedforward_option_is_checked_before_any_work():
+    from nanosim.experiments.hysteresis import hysteresis
+    from nanosim.pipeline.config import CharacterizeConfig
+
+    def factory(seed):
+        raise AssertionError("no stage may be built for a bad option")
+
+    with pytest.raises(ValueError, match="feedforward"):
+        hysteresis(factory, None, feedforward="inverse-preisach")
+    with pytest.raises(ValueError, match="feedforward"):
+        CharacterizeConfig(feedforward="charge")
+    assert CharacterizeConfig(feedforward="inverse-pi").feedforward == "inverse-pi"

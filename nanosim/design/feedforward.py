@@ -36,7 +36,11 @@ from nanosim import constants as C
 from nanosim.plant.piezo import PiezoConfig, PrandtlIshlinskii
 from nanosim.validation import as_finite_array
 
-__all__ = ["inverse_prandtl_ishlinskii", "InversePIFeedforward"]
+__all__ = ["inverse_prandtl_ishlinskii", "InversePIFeedforward", "HysteresisCompensatedController",
+           "FEEDFORWARD_CHOICES"]
+
+# names accepted by the experiments' ``feedforward`` option (None: no compensation)
+FEEDFORWARD_CHOICES = ("inverse-pi",)
 
 
 def inverse_prandtl_ishlinskii(thresholds_V, weights, linear_weight: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -142,3 +146,52 @@ class InversePIFeedforward:
     def run(self, u_V) -> np.ndarray:
         """Pre-distort a sequence ``u_V`` shape ``(N, n_channels)``."""
         return self._op.run(np.asarray(u_V, dtype=float) * self.amplifier_gain) / self.amplifier_gain
+
+
+class HysteresisCompensatedController:
+    """A feedback controller followed by the inverse-PI pre-distortion of its command.
+
+    ``u_piezo = PI^-1[G_a K(r - y, y)] / G_a``: the feedback design ``K``
+    (any :class:`~nanosim.design.controller.DiscreteController`) sees the
+    cascade ``PI o PI^-1`` as an actuator that is linear up to creep and rate
+    dependence, the inverse-hysteresis compensation in series with the actuator
+    of Fleming & Leang (2014, Sec. 11.5); the feedback removes what the
+    rate-independent inverse leaves.
+
+    Parameters
+    ----------
+    controller : DiscreteController
+        The feedback design (its ``feedback``, ``reset`` and ``reset_at`` are used).
+    feedforward : InversePIFeedforward
+        The inverse operator, one channel per actuator.
+
+    Notes
+    -----
+    ``reset`` and ``reset_at`` also return the inverse operators to the virgin
+    state, the state of a piezo that starts from rest at 0 V (the stated start
+    of every closed-loop experiment, :mod:`nanosim.experiments.loop`).
+    """
+
+    def __init__(self, controller, feedforward: InversePIFeedforward):
+        for name in ("feedback", "reset", "reset_at"):
+            if not callable(getattr(controller, name, None)):
+                raise TypeError(f"controller: expected a DiscreteController with {name}(), "
+                                f"got {type(controller).__name__}")
+        if not isinstance(feedforward, InversePIFeedforward):
+            raise TypeError(f"feedforward: expected an InversePIFeedforward, got {type(feedforward).__name__}")
+        self.controller = controller
+        self.feedforward = feedforward
+
+    def reset(self, *args, **kwargs) -> None:
+        """Reset the controller (same arguments) and the inverse operators."""
+        self.controller.reset(*args, **kwargs)
+        self.feedforward.reset()
+
+    def reset_at(self, measurement_V, command_V=None) -> None:
+        """Bumpless start of the controller at a reading; inverse operators virgin."""
+        self.controller.reset_at(measurement_V, command_V)
+        self.feedforward.reset()
+
+    def feedback(self, reference_V, measurement_V) -> np.ndarray:
+        """One sample: the controller's command, pre-distorted (controller V)."""
+        return self.feedforward.step(self.controller.feedback(reference_V, measurement_V))
