@@ -319,7 +319,7 @@ def _cmd_characterize(args) -> int:
         raise ValueError(f"--only: expected one of {', '.join(known)}, got {args.only!r}")
     _check_mjcf(args)
     controller = _check_controller(args.controller, args.mjcf)         # validate before any work
-    cfg = CharacterizeConfig(seed=args.seed, only=args.only, twin=args.twin)
+    cfg = CharacterizeConfig(seed=args.seed, only=args.only, twin=args.twin, feedforward=args.feedforward)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
         step_characterize(stage, cfg, controller_npz=controller, mjcf=args.mjcf)
@@ -615,6 +615,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--twin", action="store_true", help="run against the linear twin (same electromechanics)")
     c.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
     c.add_argument("--mjcf", default=None, type=_file)
+    c.add_argument("--feedforward", default=None, choices=("inverse-pi",),
+                   help="hysteresis compensation: the inverse Prandtl-Ishlinskii operator of the piezo, open loop "
+                        "(hysteresis) and behind the controller (hysteresis, tracking, contouring)")
     c.set_defaults(func=_cmd_characterize)
     pl = sub.add_parser("pipeline", help="run the whole chain on the bundled stage")
     pl.add_argument("--out", required=True, type=out, help="run folder for artifacts")

@@ -11,6 +11,8 @@ from nanosim.experiments.loop import (
     INTERPOLATION_S,
     LoopTrace,
     StageFactory,
+    check_feedforward,
+    compensate,
     interpolate,
     run_closed_loop,
 )
@@ -48,12 +50,18 @@ def contour_reference(speed_um_s, corner_um=20.0, fs=FS, dwell_s=0.02, smoothing
 
 
 def contouring(factory: StageFactory, controller, seed=0,
-               speeds_um_s=(10, 30, 100, 300, PAPER_CONTOUR_SPEED_UM_S)) -> list:
-    """Run the contour at each speed (um/s); returns a list of :class:`ContourCase`."""
+               speeds_um_s=(10, 30, 100, 300, PAPER_CONTOUR_SPEED_UM_S), feedforward: str | None = None) -> list:
+    """Run the contour at each speed (um/s); returns a list of :class:`ContourCase`.
+
+    ``feedforward="inverse-pi"``: the controller's command passes the inverse of the stage's
+    Prandtl-Ishlinskii operators (:func:`~nanosim.experiments.loop.compensate`).
+    """
+    check_feedforward(feedforward)
     cases = []
     for v in speeds_um_s:
         ref = contour_reference(v)
-        cl = run_closed_loop(factory(stream_seed(seed, "contouring")), controller, ref)
+        stage = factory(stream_seed(seed, "contouring"))
+        cl = run_closed_loop(stage, compensate(stage, controller, feedforward)[1], ref)
         x, y = cl.y_um[:, 0], cl.y_um[:, 1]
         moving = (ref[:, 0] > 0.5) & (ref[:, 0] < 19.5)
         d = np.abs(x - y)[moving] / np.sqrt(2) * 1e3          # distance to the 45 degree path
@@ -68,6 +76,7 @@ def _metrics(cases) -> dict:
                             "axis_tracking_error_um": c.axis_tracking_error_um} for c in cases]}
 
 
-register(Experiment("contouring", run=lambda ctx: contouring(ctx.factory, ctx.controller, seed=ctx.seed),
+register(Experiment("contouring", run=lambda ctx: contouring(ctx.factory, ctx.controller, seed=ctx.seed,
+                                                             feedforward=ctx.feedforward),
                     metrics=_metrics, figure=lambda r, ctx: fig_contouring(r),
                     figure_name=FIG20_CONTOURING, order=70, cost=6))

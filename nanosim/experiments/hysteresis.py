@@ -10,6 +10,8 @@ from nanosim.experiments.loop import (
     FS,
     LoopTrace,
     StageFactory,
+    check_feedforward,
+    compensate,
     plateaus,
     run_closed_loop,
 )
@@ -43,6 +45,7 @@ class HysteresisResult:
     closed_loop_nm: float
     closed_loop_percent: float
     closed_ramp_lag_nm: float
+    feedforward: str | None = None
 
 
 def _branch_gap(x, y, n_grid=400) -> float:
@@ -55,33 +58,46 @@ def _branch_gap(x, y, n_grid=400) -> float:
 
 
 def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel_um=20.0, levels=11,
-               dwell_s=0.12) -> HysteresisResult:
-    """Open-loop loop on actuator A (0 -> 1.65 -> 0 V) and the closed-loop 20 um triangle and staircase."""
+               dwell_s=0.12, feedforward: str | None = None) -> HysteresisResult:
+    """Open-loop loop on actuator A (0 -> 1.65 -> 0 V) and the closed-loop 20 um triangle and staircase.
+
+    ``feedforward="inverse-pi"`` pre-distorts the open-loop command through the inverse of the
+    stage's Prandtl-Ishlinskii operators and puts the same inverse behind the controller
+    (:func:`compensate`); the loop width is measured against the undistorted command.
+    """
+    check_feedforward(feedforward)
     n = int(duration_s * FS)
     tri = np.concatenate([np.linspace(0, 1, n // 2), np.linspace(1, 0, n - n // 2)])
     u = np.zeros((n, 3))
     u[:, 0] = 1.65 * tri
-    tr = factory(stream_seed(seed, "hysteresis", 0)).run(u)
+    stage = factory(stream_seed(seed, "hysteresis", 0))
+    ff, _ = compensate(stage, controller, feedforward)
+    tr = stage.run(u if ff is None else ff.run(u))
     y = tr.sensor_um - tr.sensor_um[0]
     travel = y[n // 2 - 1]
     out_pct, in_pct = loop_hysteresis_percent(u[:, 0], np.sign(travel[0]) * y[:, 0])
     ref = np.zeros((n, 3))
     ref[:, 0] = travel_um * tri
-    cl = run_closed_loop(factory(stream_seed(seed, "hysteresis", 1)), controller, ref)
+    stage = factory(stream_seed(seed, "hysteresis", 1))
+    _, ctrl = compensate(stage, controller, feedforward)
+    cl = run_closed_loop(stage, ctrl, ref)
     lag_nm = _branch_gap(ref[:, 0], cl.y_um[:, 0]) * 1e3
     lv = np.linspace(0, travel_um, levels)
     seq = np.concatenate([lv, lv[-2::-1]])
     nd = int(dwell_s * FS)
     sref = np.zeros((len(seq) * nd, 3))
     sref[:, 0] = np.repeat(seq, nd)
-    st = run_closed_loop(factory(stream_seed(seed, "hysteresis", 2)), controller, sref)
+    stage = factory(stream_seed(seed, "hysteresis", 2))
+    _, ctrl = compensate(stage, controller, feedforward)
+    st = run_closed_loop(stage, ctrl, sref)
     settled, _ = plateaus(st.y_um[:, 0], nd, len(seq))
     up, down = settled[:levels], settled[levels - 1:][::-1]
     gap_nm = float(np.abs(up - down).max() * 1e3)
     return HysteresisResult(open_v=u[:, 0], open_y_um=y, open_loop_percent=out_pct, open_loop_input_percent=in_pct,
                             open_travel_um=travel, closed=cl, closed_levels_um=lv, closed_up_um=up,
                             closed_down_um=down, closed_loop_nm=gap_nm,
-                            closed_loop_percent=100 * gap_nm * 1e-3 / travel_um, closed_ramp_lag_nm=lag_nm)
+                            closed_loop_percent=100 * gap_nm * 1e-3 / travel_um, closed_ramp_lag_nm=lag_nm,
+                            feedforward=feedforward)
 
 
 def _metrics(r: HysteresisResult) -> dict:
@@ -92,6 +108,7 @@ def _metrics(r: HysteresisResult) -> dict:
                            "closed_loop_ramp_lag_nm": r.closed_ramp_lag_nm}}
 
 
-register(Experiment("hysteresis", run=lambda ctx: hysteresis(ctx.factory, ctx.controller, seed=ctx.seed),
+register(Experiment("hysteresis", run=lambda ctx: hysteresis(ctx.factory, ctx.controller, seed=ctx.seed,
+                                                              feedforward=ctx.feedforward),
                     metrics=_metrics, figure=lambda r, ctx: fig_hysteresis(r), figure_name=FIG14_HYSTERESIS,
                     order=10, cost=3))

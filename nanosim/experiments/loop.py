@@ -17,9 +17,11 @@ import numpy as np
 
 from nanosim import constants as C
 from nanosim.design.controller import DiscreteController
+from nanosim.design.feedforward import FEEDFORWARD_CHOICES, HysteresisCompensatedController, InversePIFeedforward
 
 __all__ = ["FS", "UM_PER_V", "LoopTrace", "run_closed_loop", "StageFactory", "plateaus", "step_metrics",
-           "INTERPOLATION_S", "interpolate", "LoopProtocol", "LOOP_PROTOCOL", "start_controller"]
+           "INTERPOLATION_S", "interpolate", "LoopProtocol", "LOOP_PROTOCOL", "start_controller",
+           "check_feedforward", "compensate"]
 
 FS = C.CONTROL_RATE_HZ
 UM_PER_V = C.SENSOR_UM_PER_V
@@ -175,6 +177,28 @@ def run_closed_loop(stage, controller: DiscreteController, ref_um: np.ndarray, *
         y = stage.step(u)
         sat[k] = stage.last_saturated
     return LoopTrace(t_s=np.arange(n) / FS, ref_um=ref_um, y_um=ys, table_um=tb, u_V=us, saturated=sat)
+
+
+def check_feedforward(feedforward) -> str | None:
+    """``feedforward`` validated: None or one of :data:`~nanosim.design.feedforward.FEEDFORWARD_CHOICES`."""
+    if feedforward is not None and feedforward not in FEEDFORWARD_CHOICES:
+        raise ValueError(f"feedforward: expected None or one of {', '.join(FEEDFORWARD_CHOICES)}, "
+                         f"got {feedforward!r}")
+    return feedforward
+
+
+def compensate(stage, controller, feedforward):
+    """``(open_loop, controller)`` for ``feedforward``: the inverse-PI pre-distortion of the stage's piezo
+    (``feedforward="inverse-pi"``, :class:`~nanosim.design.feedforward.InversePIFeedforward` of
+    ``stage.actuators.piezo_config``) and the controller followed by it; ``(None, controller)`` for None.
+    """
+    if check_feedforward(feedforward) is None:
+        return None, controller
+    if getattr(stage, "closed_loop", None) is not None:
+        raise ValueError("feedforward: a batched stage runs its loop itself; expected a single stage")
+    piezo = stage.actuators.piezo_config
+    return (InversePIFeedforward(piezo),
+            HysteresisCompensatedController(controller, InversePIFeedforward(piezo)))
 
 
 StageFactory = Callable[[int], object]

@@ -32,6 +32,9 @@ class ExperimentContext:
         Static gain of the stage's mechanics (um per controller V), for open-loop moves.
     base_stage : Stage
         The nominal stage (for predictions that need its linearization).
+    feedforward : str or None
+        Hysteresis compensation for the experiments that take it (``"inverse-pi"``:
+        :mod:`nanosim.design.feedforward`); None: none.
     """
 
     factory: Callable[[int], Any]
@@ -39,6 +42,7 @@ class ExperimentContext:
     seed: int
     static_gain_um_per_V: np.ndarray | None = None
     base_stage: Any = None
+    feedforward: str | None = None
 
 
 @dataclass(frozen=True)

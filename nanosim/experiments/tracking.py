@@ -11,6 +11,8 @@ from nanosim.experiments.loop import (
     FS,
     LoopTrace,
     StageFactory,
+    check_feedforward,
+    compensate,
     interpolate,
     run_closed_loop,
 )
@@ -41,8 +43,13 @@ def _wave(kind, f, t, amp):
 
 
 def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40), amplitude_um=10.0,
-             periods=3, axis=0) -> list:
-    """Triangles and sines of ``amplitude_um`` at each frequency, through the command interpolation."""
+             periods=3, axis=0, feedforward: str | None = None) -> list:
+    """Triangles and sines of ``amplitude_um`` at each frequency, through the command interpolation.
+
+    ``feedforward="inverse-pi"``: the controller's command passes the inverse of the stage's
+    Prandtl-Ishlinskii operators (:func:`~nanosim.experiments.loop.compensate`).
+    """
+    check_feedforward(feedforward)
     cases = []
     for kind in ("triangle", "sine"):
         for f in freqs_hz:
@@ -50,7 +57,8 @@ def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40)
             t = np.arange(n) / FS
             ref = np.zeros((n, 3))
             ref[:, axis] = _wave(kind, f, t, amplitude_um)
-            cl = run_closed_loop(factory(stream_seed(seed, "tracking")), controller, interpolate(ref))
+            stage = factory(stream_seed(seed, "tracking"))
+            cl = run_closed_loop(stage, compensate(stage, controller, feedforward)[1], interpolate(ref))
             keep = slice(int(1 / f * FS), n)
             e = cl.error_um[keep, axis] * 1e3
             tt = t[keep]
@@ -66,6 +74,7 @@ def _metrics(cases) -> dict:
                           "max_error_nm": c.max_error_nm, "phase_lag_deg": c.phase_lag_deg} for c in cases]}
 
 
-register(Experiment("tracking", run=lambda ctx: tracking(ctx.factory, ctx.controller, seed=ctx.seed),
+register(Experiment("tracking", run=lambda ctx: tracking(ctx.factory, ctx.controller, seed=ctx.seed,
+                                                             feedforward=ctx.feedforward),
                     metrics=_metrics, figure=lambda r, ctx: fig_tracking(r), figure_name=FIG19_TRACKING,
                     order=60, cost=4))

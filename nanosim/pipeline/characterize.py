@@ -129,7 +129,7 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
 
     def context() -> ExperimentContext:
         return ExperimentContext(factory=factory, controller=DiscreteController(ctrl.config), seed=cfg.seed,
-                                 static_gain_um_per_V=G0, base_stage=base)
+                                 static_gain_um_per_V=G0, base_stage=base, feedforward=cfg.feedforward)
 
     def task(name):
         t0 = time.perf_counter()
@@ -165,6 +165,9 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
     by_exp = dict(metrics.pop("plant_by_experiment", None) or
                   ({n: prev_plant for n in known} if cfg.only and prev_plant else {}))
     by_exp.update({n: plant_description(cfg.twin) for n in names})
+    metrics.pop("feedforward", None)
+    if cfg.feedforward is not None:             # the compensation the hysteresis, tracking and contouring ran with
+        metrics["feedforward"] = cfg.feedforward
     write_metrics(out, metrics, twin=cfg.twin, seed=cfg.seed, seconds=_in_registry_order(timing, known),
                   plant_by_experiment=by_exp if cfg.only else None)
     return metrics

@@ -160,15 +160,25 @@ class CharacterizeConfig:
         Run on the linear twin (same electromechanics) instead of MuJoCo.
     workers : int or None
         Threads for the independent experiments (default: up to 2).
+    feedforward : str or None
+        Hysteresis compensation (``"inverse-pi"``: the inverse Prandtl-Ishlinskii operator of the
+        stage's piezo, open loop in the hysteresis experiment and behind the controller in the
+        hysteresis, tracking and contouring loops); None: none.
     """
 
     seed: int = 0
     only: str | None = None
     twin: bool = False
     workers: int | None = None
+    feedforward: str | None = None
 
     def __post_init__(self):
         _check_seed(self.seed)
+        from nanosim.design.feedforward import FEEDFORWARD_CHOICES      # numba-compiled piezo: import on use
+
+        if self.feedforward is not None and self.feedforward not in FEEDFORWARD_CHOICES:
+            raise ValueError(f"feedforward: expected None or one of {', '.join(FEEDFORWARD_CHOICES)}, "
+                             f"got {self.feedforward!r}")
         if self.workers is not None and (not isinstance(self.workers, int) or self.workers < 1):
             raise ValueError(f"workers: expected a positive integer, got {self.workers!r}")
 
