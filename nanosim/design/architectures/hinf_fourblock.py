@@ -18,15 +18,18 @@ optimum damps the pair instead::
 ``"hinf"``). ``Wd`` is diagonal, in controller volts per unit of the reference channel
 (sensor V)::
 
-    Wd(s) = (h / |G(0)| * wb / (s + wb) + n_in / r_ref) * LP_N(s)
+    Wd(s) = (h / |G(0)| + n_in / r_ref) * LP_N(s)
 
-* ``h`` -- the piezo's hysteresis, the input-referred disturbance the loop rejects at low
-  frequency: the loop width of the paper's Fig. 14 (:data:`HYSTERESIS_FRACTION`), referred to
-  the actuator input through the identified static gain (``|G(0)|``, the smallest singular value: the
-  least favourable direction);
-* ``wb`` -- that disturbance follows the command, whose content is limited to the loop's
-  required bandwidth, the paper's 32 Hz S bandwidth (:data:`nanosim.paper.PAPER` ``"bwS"``), stated as a
-  requirement;
+* ``h`` -- the piezo's hysteresis, the input-referred disturbance the loop rejects: the loop
+  width of the paper's Fig. 14 (:data:`HYSTERESIS_FRACTION`), referred to the actuator input
+  through the identified static gain (``|G(0)|``, the smallest singular value: the least
+  favourable direction). The hysteresis error follows the command, and the command of a step
+  (the paper's 2 um step, the loop's own test) has content up to the Nyquist frequency, so
+  the level is flat up to ``LP_N``; in particular it covers the first pair, where an input
+  disturbance rings the stage through ``SG``. (``disturbance_weight(..., bandwidth_hz=fb)``
+  gives the band-limited variant ``h / |G(0)| * wb / (s + wb)``, a command assumed limited to
+  ``fb``: it weights ``SG`` at the pair ``fb / f_pair`` times less, and the optimum leaves the
+  pair less damped.)
 * ``n_in / r_ref`` -- the broadband floor: the input-referred noise per sample of the DAC and
   the amplifier (:data:`nanosim.constants.DAC_WHITE_NOISE_V`, :data:`~nanosim.constants.AMPLIFIER_NOISE_V`,
   summed in power) against the reference scale of the paper's 2 um step (:data:`REFERENCE_STEP_UM`);
@@ -51,9 +54,11 @@ then :data:`GAMMA_MARGIN` above the smallest such gamma, where the central contr
 well conditioned) -> 4 kHz by Tustin (:func:`to_discrete`, the inverse of the model's
 conversion, so the discrete loop is the Tustin image of the designed one).
 
-The 2 um step: the loop's T peaks above its bandwidth, and the step overshoots. A reference
-prefilter (second degree of freedom) ``u = K (F r - y)``, ``F`` critically damped at the paper's
-T bandwidth (59 Hz), removes it (:func:`with_reference_prefilter`); the feedback loop is unchanged.
+The exported loop has one degree of freedom, ``u = K (r - y)``: its reference-to-error response
+is the ``S`` the bandwidth requirement is stated on. A reference prefilter (second degree of
+freedom) ``u = K (F r - y)``, ``F`` critically damped at the paper's T bandwidth (59 Hz), is
+available (``reference_prefilter=True``, :func:`with_reference_prefilter`): it leaves the
+feedback loop unchanged but slows the reference path, and so the measured ``r -> e`` bandwidth.
 
 Tuning rule. In the four-block problem the achieved gamma is set by the disturbance blocks
 (the first pair's ``SG`` against the paper's ``Wt``, which bounds ``T`` near the pair), and the
@@ -111,10 +116,10 @@ GAMMA_RTOL = 0.01
 GRID_SLACK = 1.05
 TUNING_RULE = ("four-block H-infinity (S, SG, KS, T; Skogestad & Postlethwaite Sec. 9.3) on the "
                f"{REDUCED_ORDER}-state reduced identified model: the paper's Wp, Wt, Wu and an input-disturbance "
-               "weight Wd from the hysteresis width (Fig. 14) below the paper's 32 Hz bandwidth and the DAC + "
-               "amplifier input noise above it, Nyquist-limited; the paper's Wp moved up in frequency by the smallest "
+               "weight Wd from the hysteresis width (Fig. 14) and the DAC + amplifier input noise, flat to the "
+               "Nyquist low-pass; the paper's Wp moved up in frequency by the smallest "
                "factor whose predicted S bandwidth meets the paper's 32 Hz; gamma 1.1 x the smallest verified; Tustin "
-               "both ways; reference prefilter critically damped at the paper's 59 Hz T bandwidth")
+               "both ways; one degree of freedom u = K (r - y)")
 
 
 def input_noise_V() -> float:
@@ -133,7 +138,8 @@ def disturbance_weight(G0, dt: float = DT_S, *, bandwidth_hz: float | None = Non
     dt : float
         Control period [s] (the Nyquist low-pass).
     bandwidth_hz : float or None
-        Corner of the hysteresis part; None: the paper's S bandwidth.
+        Corner of the hysteresis part (a command band-limited to it); None: flat up to the
+        Nyquist low-pass (a sampled step's command).
     hysteresis : float
         Hysteresis width, fraction of the stroke.
     n : int or None
@@ -149,21 +155,25 @@ def disturbance_weight(G0, dt: float = DT_S, *, bandwidth_hz: float | None = Non
     import control as ct
     G0 = np.atleast_2d(np.asarray(G0, float))
     n = G0.shape[1] if n is None else int(n)
-    fb = float(PAPER["bwS"] if bandwidth_hz is None else bandwidth_hz)
-    if not (fb > 0 and math.isfinite(fb)):
-        raise ValueError(f"bandwidth_hz: expected a positive number of Hz, got {bandwidth_hz!r}")
+    fb = None if bandwidth_hz is None else float(bandwidth_hz)
+    if fb is not None and not (fb > 0 and math.isfinite(fb)):
+        raise ValueError(f"bandwidth_hz: expected a positive number of Hz or None, got {bandwidth_hz!r}")
     g_min = float(np.linalg.svd(G0, compute_uv=False).min())
     low = hysteresis / g_min
     r_ref_V = REFERENCE_STEP_UM / constants.SENSOR_UM_PER_V
     floor = input_noise_V() / r_ref_V
-    wb, wn = 2 * math.pi * fb, math.pi / dt
-    w = (ct.tf([low * wb], [1.0, wb]) + floor) * ct.tf([wn * wn], [1.0, math.sqrt(2.0) * wn, wn * wn])
+    wn = math.pi / dt
+    hyst = ct.tf([low], [1.0]) if fb is None else ct.tf([low * 2 * math.pi * fb], [1.0, 2 * math.pi * fb])
+    w = ct.minreal(ct.tf(hyst + floor), verbose=False) * ct.tf([wn * wn], [1.0, math.sqrt(2.0) * wn, wn * wn])
     ws = ct.ss(w)
     Wd = ct.append(*[ws] * n)
-    parts = {"form": "Wd(s) = (h / sigma_min(G(0)) * wb / (s + wb) + n_in / r_ref) * LP_N(s), per input",
+    form = ("Wd(s) = (h / sigma_min(G(0)) + n_in / r_ref) * LP_N(s), per input" if fb is None else
+            "Wd(s) = (h / sigma_min(G(0)) * wb / (s + wb) + n_in / r_ref) * LP_N(s), per input")
+    parts = {"form": form,
              "hysteresis_fraction": hysteresis, "hysteresis_source": "paper Fig. 14 open-loop loop width (15 % / 14 %)",
              "sigma_min_G0": g_min, "low_frequency_level": low, "corner_hz": fb,
-             "corner_source": "the paper's S bandwidth (32 Hz), the required bandwidth",
+             "corner_source": ("none: a step command has content up to the Nyquist frequency, and the hysteresis "
+                               "error follows the command" if fb is None else "given (bandwidth_hz)"),
              "input_noise_V": input_noise_V(),
              "input_noise_source": "hypot(nanosim.constants.DAC_WHITE_NOISE_V, AMPLIFIER_NOISE_V), per sample",
              "reference_scale_V": r_ref_V, "floor_level": floor, "nyquist_lowpass_hz": 0.5 / dt,
@@ -415,7 +425,8 @@ def scaled_wp(Wp, scale: float):
 @single_threaded_blas
 def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES,
                           reduced_order: int = REDUCED_ORDER, weights=None,
-                          bandwidth_hz: float | None = None, reference_prefilter: bool = True) -> BenchDesign:
+                          bandwidth_hz: float | None = None, reference_prefilter: bool = False,
+                          disturbance_bandwidth_hz: float | None = None) -> BenchDesign:
     """The four-block H-infinity design of the module docstring.
 
     Parameters
@@ -433,8 +444,11 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELA
     bandwidth_hz : float or None
         The required S bandwidth of the tuning rule; None: the paper's 32 Hz.
     reference_prefilter : bool
-        Add the reference prefilter (:func:`with_reference_prefilter`; False: the one-degree-of-freedom loop,
-        whose reference-to-error bandwidth is its S bandwidth).
+        Add the reference prefilter (:func:`with_reference_prefilter`); False (default): the
+        one-degree-of-freedom loop, whose reference-to-error bandwidth is its S bandwidth.
+    disturbance_bandwidth_hz : float or None
+        Corner of the hysteresis part of ``Wd`` (:func:`disturbance_weight`); None (default): flat to
+        the Nyquist low-pass.
 
     Returns
     -------
@@ -460,7 +474,7 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELA
     if delay_samples:
         Gr = ct.ss(ct.series(tustin_delay(Gr.ninputs, delay_samples, dt), Gr))
     G0 = dc_gain_z(Gd)
-    Wd, wd_parts = disturbance_weight(G0, dt)
+    Wd, wd_parts = disturbance_weight(G0, dt, bandwidth_hz=disturbance_bandwidth_hz)
     ny, nu = Gr.noutputs, Gr.ninputs
     modes = distinct_modes_hz(Gd)
     f = np.unique(np.concatenate([np.logspace(-3, math.log10(0.999 * 0.5 / dt), 1500),
@@ -504,8 +518,9 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELA
                                  "Wp scale": "the smallest corner-frequency scale b >= 1 of the paper's Wp "
                                              "(Wp(s / b)) whose predicted S bandwidth on the identified model meets "
                                              "the required 32 Hz (the paper's), stated up front",
-                                 "Wd": "module nanosim.design.architectures.hinf_fourblock: hysteresis (Fig. 14) below "
-                                       "the paper's S bandwidth, DAC + amplifier input noise above, Nyquist-limited"},
+                                 "Wd": "module nanosim.design.architectures.hinf_fourblock: hysteresis width (Fig. 14) "
+                                       "through sigma_min(G(0)) plus the DAC + amplifier input noise, flat to the "
+                                       "Nyquist low-pass (a step command's content)"},
               "generalized_plant": "w = [r; d], y = G (u + Wd d), e = r - y, z = [Wp e; Wu u; Wt y], v = e",
               "discretization": "tustin (design model: inverse Tustin of the identified discrete model)",
               "design_model_delay_samples": int(delay_samples), "loop_delay_samples": int(delay_samples),
