@@ -116,9 +116,9 @@ def validation_rows(run) -> list[dict]:
         "static gain calibrated to 3.0 um/V x J (X and Z agree with the paper; its Y = 7.1 does not agree with J)")
     row("open-loop hysteresis, output / input", [_PAPER["hyst_out_pct"], _PAPER["hyst_in_pct"]],
         [_get(met, "hysteresis", "open_loop_percent"), _get(met, "hysteresis", "open_loop_input_percent")], "%",
-        "fitted", "Prandtl-Ishlinskii weights scaled to the paper's Fig. 14 loop")
+        "fitted", "the thermally activated operators' weight scale fitted to the paper's Fig. 14 loop")
     row("open-loop sigma at rest", _PAPER["sigma_open_nm"], _get(met, "resolution_sigma_nm", "open_loop"), "nm",
-        "fitted", "the one noise level fitted: the DAC's")
+        "fitted", "the one noise level fitted: the legs' thermal drift (tools/fit_drift_level.py, 20 stages)")
     m0, m80 = run / A.MODEL_NPZ, run / A.model_at_npz(80.0)
     if m0.is_file() and m80.is_file():
         d = operating_point_difference(m0, m80)
@@ -132,7 +132,8 @@ def validation_rows(run) -> list[dict]:
             r = [x["zero_over_pole"] for x in dbl]
             row("identified real pole (creep doublet) per column", list(_PAPER["creep_pole_rad_s"]),
                 [round(min(p), 1), round(max(p), 1)], "rad/s", "predicted",
-                "log creep (PI, 2 %/decade) seen through the paper's excitation; no time constant imposed")
+                "the operators' logarithmic creep (CREEP_PER_DECADE) seen through the paper's excitation; "
+                "no time constant imposed")
             row("its zero / pole ratio", list(_PAPER["creep_zero_over_pole"]), [round(min(r), 3), round(max(r), 3)],
                 "", "predicted")
     paper = is_paper_design(_load_json(run / A.DESIGN_JSON))
