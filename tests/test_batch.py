@@ -25,23 +25,9 @@ from nanosim.plant.modes import modal_analysis
 from nanosim.plant.stage import Stage, StageConfig
 from nanosim.plant.tolerances import default_tolerances, sample_model
 from nanosim.plant.twin import TwinStage
+from integrator_loop import integrator_controller
 
 FIELDS = ("y_um", "table_um", "u_V", "saturated")
-
-
-def _controller(G0_um_per_V, two_dof: bool, f_hz: float = 20.0) -> ControllerConfig:
-    """Leaky integrator through inv(G0) (``f_hz``; 20 Hz rings and saturates on the stage's modes, which the
-    equality tests want); 2-DOF: plus a low-passed measurement feedback."""
-    T, leak = 2.5e-4, 0.9995
-    g = 2 * np.pi * f_hz * T * np.linalg.inv(G0_um_per_V / 5.0)       # controller V per sensor V
-    if not two_dof:
-        return ControllerConfig(leak * np.eye(3), np.eye(3), g, g, T)
-    a = 0.95
-    A = np.block([[leak * np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), a * np.eye(3)]])
-    B = np.block([[np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), (1 - a) * np.eye(3)]])
-    C = np.hstack([g, 0.3 * g])
-    D = np.hstack([g, -0.3 * g])
-    return ControllerConfig(A, B, C, D, T, n_error=3)
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +64,7 @@ def test_twin_open_loop_bitwise(plants):
 
 @pytest.mark.parametrize("two_dof", [False, True])
 def test_twin_closed_loop_bitwise_per_member_plants_and_seeds(plants, two_dof):
-    ctrls = [_controller(p["G0"], two_dof) for p in plants]
+    ctrls = [integrator_controller(p["G0"], two_dof) for p in plants]
     seeds = [2, 7]
     stage = BatchTwinStage([p["twin"] for p in plants], seeds, home_um=np.array([p["home"] for p in plants]),
                            floor_models=[p["floor"] for p in plants])
@@ -92,7 +78,7 @@ def test_twin_closed_loop_bitwise_per_member_plants_and_seeds(plants, two_dof):
 
 def test_fast_products_within_1e9(plants):
     p = plants[0]
-    c = _controller(p["G0"], True, f_hz=1.0)        # a stable loop: round-off is not amplified
+    c = integrator_controller(p["G0"], True, f_hz=1.0)        # a stable loop: round-off is not amplified
     seeds = [1, 2, 3]
     exact = run_closed_loop_batch(BatchTwinStage(p["twin"], seeds, home_um=p["home"], floor_models=p["floor"]),
                                   BatchController(c, n=3), _ref(), protocol=LoopProtocol(0.06, 0.04))
@@ -105,7 +91,7 @@ def test_fast_products_within_1e9(plants):
 
 
 def test_mujoco_closed_loop_bitwise_two_threads(plants):
-    ctrls = [_controller(p["G0"], True) for p in plants]
+    ctrls = [integrator_controller(p["G0"], True) for p in plants]
     seeds = [5, 6]
     ref = _ref(300)
     with BatchMujocoStage([p["model"] for p in plants], seeds, nthread=2) as stage:
@@ -118,7 +104,7 @@ def test_mujoco_closed_loop_bitwise_two_threads(plants):
 
 
 def test_controller_bank_pads_orders_and_checks_members(plants):
-    c1, c2 = _controller(plants[0]["G0"], True), _controller(plants[1]["G0"], True)
+    c1, c2 = integrator_controller(plants[0]["G0"], True), integrator_controller(plants[1]["G0"], True)
     small = ControllerConfig(c1.Akd[:3, :3], c1.Bkd[:3], c1.Ckd[:, :3], c1.Dkd, c1.dt, n_error=3)
     bank = BatchController([small, c2])
     assert bank.n_states == 6
@@ -133,7 +119,7 @@ def test_controller_bank_pads_orders_and_checks_members(plants):
         assert np.allclose(u[0], single[0].feedback(r[0], y[0]), rtol=1e-12, atol=1e-15)   # padded: sum order
         assert np.array_equal(u[1], single[1].feedback(r[1], y[1]))
     with pytest.raises(ValueError, match="n_in, n_out, n_error"):
-        BatchController([c1, _controller(plants[0]["G0"], False)])
+        BatchController([c1, integrator_controller(plants[0]["G0"], False)])
     with pytest.raises(ValueError, match="controller: expected 3 members"):
         run_closed_loop_batch(BatchTwinStage(plants[0]["twin"], [0, 1, 2]), bank, _ref())
 
@@ -165,7 +151,7 @@ def short_experiments():
 
 
 def test_registered_experiments_in_lockstep_equal_single_runs(plants, short_experiments):
-    ctrl = _controller(plants[0]["G0"], True)
+    ctrl = integrator_controller(plants[0]["G0"], True)
     members = [MemberPlant(twin=p["twin"], model=p["model"], home_um=p["home"], static_gain_um_per_V=p["G0"])
                for p in plants]
     metrics, _ = run_experiments_batch(short_experiments, members, ctrl, seed=3, exact=True)
@@ -200,7 +186,7 @@ def test_data_dependent_control_flow_falls_back_to_single_members(plants):
         G = [p["G0"] for p in plants]
         members = [MemberPlant(twin=plants[0]["twin"], home_um=plants[0]["home"], static_gain_um_per_V=g * s)
                    for g, s in zip(G, (1.0, -1.0))]
-        metrics, _ = run_experiments_batch(["t_divergent"], members, _controller(G[0], False), seed=1)
+        metrics, _ = run_experiments_batch(["t_divergent"], members, integrator_controller(G[0], False), seed=1)
         for b, m in enumerate(members):
             n = 40 if m.static_gain_um_per_V[0, 0] > 0 else 20
             single = TwinStage(plants[0]["twin"], seed=1, home_um=plants[0]["home"]).run(np.full((n, 3), 0.5))

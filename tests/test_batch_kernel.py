@@ -8,7 +8,7 @@ B = 1 equals :class:`~nanosim.plant.twin.TwinStage` with :class:`DiscreteControl
 import numpy as np
 import pytest
 
-from nanosim.design.controller import ControllerConfig, DiscreteController
+from nanosim.design.controller import DiscreteController
 from nanosim.experiments.batch_loop import BatchController, run_closed_loop_batch
 from nanosim.experiments.loop import LoopProtocol, run_closed_loop
 from nanosim.plant import batch_kernel
@@ -20,23 +20,13 @@ from nanosim.plant.modes import modal_analysis
 from nanosim.plant.stage import Stage, StageConfig
 from nanosim.plant.tolerances import default_tolerances, sample_model
 from nanosim.plant.twin import TwinStage
+from integrator_loop import integrator_controller
 
 SHORT = LoopProtocol(0.03, 0.02)        # a short approach and hold: the loops' start, not their settling
 
 pytestmark = pytest.mark.skipif(not batch_kernel.AVAILABLE, reason="numba is not installed")
 
 FIELDS = ("y_um", "table_um", "u_V", "saturated")
-
-
-def _controller(G0_um_per_V, two_dof: bool, f_hz: float) -> ControllerConfig:
-    T, leak = 2.5e-4, 0.9995
-    g = 2 * np.pi * f_hz * T * np.linalg.inv(G0_um_per_V / 5.0)
-    if not two_dof:
-        return ControllerConfig(leak * np.eye(3), np.eye(3), g, g, T)
-    a = 0.95
-    A = np.block([[leak * np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), a * np.eye(3)]])
-    B = np.block([[np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), (1 - a) * np.eye(3)]])
-    return ControllerConfig(A, B, np.hstack([g, 0.3 * g]), np.hstack([g, -0.3 * g]), T, n_error=3)
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +84,7 @@ def test_member_products_are_the_numpy_paths():
 @pytest.mark.parametrize("two_dof", [False, True])
 def test_compiled_closed_loop_equals_numpy_path(plants, exact, two_dof):
     """Per-member twins with floor vibration, per-member controllers (20 Hz: rings and saturates)."""
-    ctrls = [_controller(p["G0"], two_dof, 20.0) for p in plants]
+    ctrls = [integrator_controller(p["G0"], two_dof, 20.0) for p in plants]
 
     def run(compiled):
         st = BatchTwinStage([p["twin"] for p in plants], [4, 11], home_um=np.array([p["home"] for p in plants]),
@@ -115,7 +105,7 @@ def test_compiled_closed_loop_equals_numpy_path(plants, exact, two_dof):
 def test_compiled_shared_twin_and_controller_fast_products(plants):
     """The benchmark's configuration: one twin and one controller for all members, ``exact=False`` (gemm)."""
     p = plants[0]
-    c = _controller(p["G0"], True, 5.0)
+    c = integrator_controller(p["G0"], True, 5.0)
 
     def run(compiled):
         st = BatchTwinStage(p["twin"], [1, 2, 3], home_um=p["home"], exact=False, compiled=compiled)
@@ -129,7 +119,7 @@ def test_compiled_shared_twin_and_controller_fast_products(plants):
 @pytest.mark.parametrize("two_dof", [False, True])
 def test_compiled_batch_of_one_equals_single_stage(plants, two_dof):
     p = plants[1]
-    c = _controller(p["G0"], two_dof, 30.0)
+    c = integrator_controller(p["G0"], two_dof, 30.0)
     st = BatchTwinStage([p["twin"]], [9], home_um=p["home"], floor_models=[p["floor"]])
     (got,) = run_closed_loop_batch(st, BatchController([c]), _ref(), protocol=SHORT)
     assert batch_kernel.supported(st)
@@ -143,7 +133,7 @@ def test_compiled_batch_of_one_equals_single_stage(plants, two_dof):
 def test_compiled_loop_across_noise_chunks_equals_numpy_path_and_single_stage(plants):
     # 1234 open-loop periods first, so the 4096-row noise chunks end inside the closed loop's calls
     p = plants[0]
-    c = _controller(p["G0"], True, 20.0)
+    c = integrator_controller(p["G0"], True, 20.0)
     ref = np.tile(_ref(), (13, 1))[:9000]
     got = {}
     for compiled in (True, False):

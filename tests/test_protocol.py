@@ -15,18 +15,7 @@ from nanosim.plant.batch import BatchTwinStage
 from nanosim.plant.modes import modal_analysis
 from nanosim.plant.stage import StageConfig
 from nanosim.plant.twin import TwinStage
-
-
-def _integrator(G0_um_per_V, two_dof: bool = False, f_hz: float = 15.0, leak: float = 0.9995) -> ControllerConfig:
-    """A leaky integrator through inv(G0) (crossover ``f_hz``); 2-DOF: plus a low-passed measurement path."""
-    T = 1 / FS
-    g = 2 * np.pi * f_hz * T * np.linalg.inv(G0_um_per_V / 5.0)          # controller V per sensor V
-    if not two_dof:
-        return ControllerConfig(leak * np.eye(3), np.eye(3), g, g, T)
-    a = 0.95
-    A = np.block([[leak * np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), a * np.eye(3)]])
-    B = np.block([[np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), (1 - a) * np.eye(3)]])
-    return ControllerConfig(A, B, np.hstack([g, 0.3 * g]), np.hstack([g, -0.3 * g]), T, n_error=3)
+from integrator_loop import integrator_controller
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +55,7 @@ def test_protocol_rejects_bad_durations_naming_them(kw):
 
 
 def test_run_closed_loop_rejects_a_protocol_of_another_type(setup):
-    ctrl = DiscreteController(_integrator(setup["G0"]))
+    ctrl = DiscreteController(integrator_controller(setup["G0"], f_hz=15.0))
     with pytest.raises(ValueError, match="protocol"):
         run_closed_loop(setup["factory"](0), ctrl, np.zeros((10, 3)), protocol=0.6)
 
@@ -74,7 +63,7 @@ def test_run_closed_loop_rejects_a_protocol_of_another_type(setup):
 @pytest.mark.parametrize("two_dof", [False, True])
 def test_a_dirty_controller_gives_the_fresh_controllers_bits(setup, two_dof):
     # rule 1: one start for one- and two-degree-of-freedom controllers alike
-    cfg = _integrator(setup["G0"], two_dof)
+    cfg = integrator_controller(setup["G0"], two_dof, f_hz=15.0)
     ref = np.zeros((400, 3))
     ref[100:, 0] = 1.0
     fresh = run_closed_loop(setup["factory"](4), DiscreteController(cfg), ref)
@@ -98,7 +87,7 @@ def test_the_record_starts_on_the_first_reference(setup):
 
 
 def test_batch_members_start_like_the_single_loop(setup):
-    cfg = _integrator(setup["G0"], two_dof=True)
+    cfg = integrator_controller(setup["G0"], two_dof=True, f_hz=15.0)
     bank = BatchController([cfg, cfg])
     bank.feedback(np.full((2, 3), 0.3), np.zeros((2, 3)))            # a state left by another run
     ref = np.zeros((300, 3))
@@ -119,7 +108,7 @@ def test_every_registered_experiment_run_twice_with_one_controller_object_gives_
     Fails for an experiment that runs a second closed loop with the state its first one left.
     """
     exp = experiments.get(name)
-    ctrl = DiscreteController(_integrator(setup["G0"]))
+    ctrl = DiscreteController(integrator_controller(setup["G0"], f_hz=15.0))
     ctx = ExperimentContext(factory=setup["factory"], controller=ctrl, seed=1, static_gain_um_per_V=setup["G0"])
     first = json.dumps(exp.metrics(exp.run(ctx)), sort_keys=True)
     _dirty(ctrl)
@@ -130,7 +119,7 @@ def test_every_registered_experiment_run_twice_with_one_controller_object_gives_
 def test_the_step_after_the_prbs_record_equals_a_step_with_a_fresh_controller(setup):
     # bandwidth() runs the PRBS record and then the steps with one controller object: each step must be
     # the step a brand-new controller gives
-    cfg = _integrator(setup["G0"])
+    cfg = integrator_controller(setup["G0"], f_hz=15.0)
     r = bw_mod.bandwidth(setup["factory"], DiscreteController(cfg), seed=2, duration_s=1.1, holds_s=(0.1,),
                          axes=(0,))
     assert [(c.axis, c.sign, c.hold_s) for c in r.steps] == [(0, 1, 0.1), (0, -1, 0.1)]
@@ -143,7 +132,7 @@ def test_the_step_after_the_prbs_record_equals_a_step_with_a_fresh_controller(se
 
 
 def test_bandwidth_reports_each_step_case_and_the_worst(setup):
-    cfg = _integrator(setup["G0"], f_hz=5.0, leak=1.0)
+    cfg = integrator_controller(setup["G0"], f_hz=5.0, leak=1.0)
     r = bw_mod.bandwidth(setup["factory"], DiscreteController(cfg), seed=0, duration_s=1.1, holds_s=(0.05, 0.1))
     m = registry.get("bandwidth").metrics(r)                      # what metrics.json holds
     assert len(m["step_2um_cases"]) == 8
