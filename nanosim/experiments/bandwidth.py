@@ -1,5 +1,13 @@
 """Bandwidth from S and T measured with PRBS references, and the 2 um step (paper Fig. 18).
 
+``S`` is the output sensitivity of the feedback loop, ``(I + G K_fb)^-1``. For a controller
+with one degree of freedom (``u = K (r - y)``) it is the reference-to-error map ``I - T``,
+measured directly. For two degrees of freedom (``u = K_e e + K_y y``, a reference prefilter)
+the reference-to-error map also holds the prefilter, so ``S`` is computed from the same
+record by the indirect closed-loop method (Ljung, *System Identification*, 2nd ed., Sec. 13.5):
+the plant as the loop runs it, ``G = T_yr T_ur^-1`` (both H1 estimates from the reference),
+closed with the controller's known feedback part ``K_fb = K_e - K_y``.
+
 The step is measured in eight cases: +X, -X, +Y and -Y, each after a hold of
 1 s and of 3 s at the origin (:data:`STEP_HOLDS_S`), every case on a fresh
 stage from the state :class:`~nanosim.experiments.loop.LoopProtocol` states
@@ -23,6 +31,7 @@ from nanosim.design.controller import DiscreteController
 from nanosim.design.lti import crossing_hz
 from nanosim.experiments.loop import (
     FS,
+    UM_PER_V,
     LOOP_PROTOCOL,
     LoopProtocol,
     LoopTrace,
@@ -36,7 +45,8 @@ from nanosim.plant.linearize import linearize
 from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_bandwidth
 
-__all__ = ["BandwidthResult", "StepCase", "bandwidth", "step_case", "predicted_loop", "PRBS_DURATION_S",
+__all__ = ["BandwidthResult", "StepCase", "bandwidth", "step_case", "predicted_loop", "controller_response",
+           "feedback_sensitivity_sigma", "PRBS_DURATION_S",
            "PRBS_AMPLITUDE_UM", "STEP_HOLDS_S", "STEP_RECORD_S", "STEP_LEAD_S", "HEADLINE_STEP"]
 
 # The PRBS references (also the reading disturbance of nanosim.pipeline.compare.feedback_sensitivity)
@@ -97,6 +107,8 @@ class BandwidthResult:
     overshoot_percent: float
     steps: tuple = ()
     protocol: LoopProtocol = LOOP_PROTOCOL
+    bandwidth_reference_error_hz: float = float("nan")
+    sensitivity_method: str = "I - T (one degree of freedom)"
 
     @property
     def worst_step(self) -> dict:
@@ -153,11 +165,18 @@ def bandwidth(factory: StageFactory, controller, seed=0, duration_s=PRBS_DURATIO
     f = est_T.freq_hz
     band = (f >= 1.0) & (f <= 1000.0)
     T = est_T.H[band]
-    S = np.eye(3)[None] - T
-    sT = np.linalg.svd(T, compute_uv=False)[:, 0]
-    sS = np.linalg.svd(S, compute_uv=False)[:, 0]
     fb = f[band]
     lvl = 1 / np.sqrt(2)
+    sT = np.linalg.svd(T, compute_uv=False)[:, 0]
+    sE = np.linalg.svd(np.eye(3)[None] - T, compute_uv=False)[:, 0]
+    bE = crossing_hz(fb, sE, lvl, rising=True)
+    config = controller.config
+    if config.n_in > config.n_error:
+        est_U = ident.h1_estimate(ref, cl.u_V, fs=FS, nperseg=2048)
+        sS = feedback_sensitivity_sigma(T, est_U.H[band], config, fb)
+        method = "(I + G K_fb)^-1, G = T_yr T_ur^-1 from the reference record (two degrees of freedom)"
+    else:
+        sS, method = sE, "I - T (one degree of freedom)"
     bS = crossing_hz(fb, sS, lvl, rising=True)
     bT = crossing_hz(fb, sT, lvl, rising=False)
     plan = [(axis, sign, hold) for hold in holds_s for axis in axes for sign in (1, -1)]
@@ -166,24 +185,64 @@ def bandwidth(factory: StageFactory, controller, seed=0, duration_s=PRBS_DURATIO
     head = next((c for c in cases if (c.axis, c.sign, c.hold_s) == HEADLINE_STEP), cases[0])
     return BandwidthResult(freq_hz=fb, sigma_S=sS, sigma_T=sT, bandwidth_S_hz=bS, bandwidth_T_hz=bT, step=head.trace,
                            rise_ms=head.rise_ms, peak_ms=head.peak_ms, settling_ms=head.settling_ms,
-                           overshoot_percent=head.overshoot_percent, steps=cases, protocol=protocol)
+                           overshoot_percent=head.overshoot_percent, steps=cases, protocol=protocol,
+                           bandwidth_reference_error_hz=bE, sensitivity_method=method)
+
+
+def controller_response(config, f_hz) -> tuple[np.ndarray, np.ndarray]:
+    """``(K_e, K_y)`` of ``u = K_e e + K_y y`` on ``f_hz`` [controller V / sensor V], shapes (F, nu, n_error) and
+    (F, nu, n_in - n_error) (empty for one degree of freedom).
+    """
+    z = np.exp(2j * np.pi * np.asarray(f_hz, float) * config.dt)
+    n = len(config.Akd)
+    Kz = np.stack([config.Ckd @ np.linalg.solve(zz * np.eye(n) - config.Akd, config.Bkd) + config.Dkd for zz in z])
+    return Kz[:, :, :config.n_error], Kz[:, :, config.n_error:]
+
+
+def feedback_sensitivity_sigma(T_yr, T_ur, config, f_hz) -> np.ndarray:
+    """``sigma_max((I + G K_fb)^-1)`` on ``f_hz`` from the closed-loop responses to the reference.
+
+    Parameters
+    ----------
+    T_yr : ndarray, shape (F, ny, ny)
+        Reference to reading [um / um].
+    T_ur : ndarray, shape (F, nu, ny)
+        Reference to command [controller V / um].
+    config : ControllerConfig
+        The controller that ran (``K_fb = K_e - K_y``).
+    f_hz : ndarray, shape (F,)
+
+    Returns
+    -------
+    ndarray, shape (F,)
+        ``G = T_yr T_ur^-1`` (the plant as the loop runs it, converted to sensor V per controller V)
+        closed with ``K_fb``.
+    """
+    Ke, Ky = controller_response(config, f_hz)
+    K_fb = Ke - Ky if Ky.shape[2] else Ke
+    G_V = np.linalg.solve(np.swapaxes(T_ur, 1, 2), np.swapaxes(T_yr, 1, 2)).swapaxes(1, 2) / UM_PER_V
+    ny = G_V.shape[1]
+    S = np.linalg.inv(np.eye(ny)[None] + G_V @ K_fb)
+    return np.linalg.svd(S, compute_uv=False)[:, 0]
 
 
 def predicted_loop(controller: DiscreteController, base, f_hz=None):
-    """sigma(S), sigma(T) of the discrete loop with the linear twin (piezo small-signal gain included)."""
+    """sigma(S), sigma(T) of the discrete loop with the linear twin (piezo small-signal gain included):
+    ``S`` the feedback loop's output sensitivity, ``T`` the reference-to-reading map.
+    """
     tw = linearize(base, include_piezo=True)
     G = tw.sysd_V
     c = controller.config
     f = np.logspace(0, 3, 400) if f_hz is None else f_hz
     z = np.exp(2j * np.pi * f * c.dt)
     sS, sT = [], []
-    for zz in z:
+    Kes, Kys = controller_response(c, f)
+    for zz, Ke, Ky in zip(z, Kes, Kys):
         Gz = G(zz)
-        Kz = c.Ckd @ np.linalg.solve(zz * np.eye(len(c.Akd)) - c.Akd, c.Bkd) + c.Dkd
-        Ke, Ky = Kz[:, :c.n_error], Kz[:, c.n_error:]         # u = Ke e + Ky y (Ky empty for 1-DOF)
-        K_fb = Ke - Ky if Ky.size else Ke
+        K_fb = Ke - Ky if Ky.size else Ke                     # u = Ke e + Ky y (Ky empty for 1-DOF)
         T = np.linalg.solve(np.eye(3) + Gz @ K_fb, Gz @ Ke)   # r -> y
-        sS.append(np.linalg.svd(np.eye(3) - T, compute_uv=False)[0])
+        S = np.eye(3) - T if not Ky.size else np.linalg.inv(np.eye(3) + Gz @ K_fb)
+        sS.append(np.linalg.svd(S, compute_uv=False)[0])
         sT.append(np.linalg.svd(T, compute_uv=False)[0])
     return f, np.array(sS), np.array(sT)
 
@@ -191,6 +250,7 @@ def predicted_loop(controller: DiscreteController, base, f_hz=None):
 def _metrics(r: BandwidthResult) -> dict:
     axis, sign, hold = HEADLINE_STEP
     return {"bandwidth_S_hz": r.bandwidth_S_hz, "bandwidth_T_hz": r.bandwidth_T_hz,
+            "bandwidth_reference_error_hz": r.bandwidth_reference_error_hz, "sensitivity_method": r.sensitivity_method,
             "step_2um": {"rise_ms": r.rise_ms, "peak_ms": r.peak_ms, "settling_ms": r.settling_ms,
                          "overshoot_percent": r.overshoot_percent,
                          "case": f"{'+' if sign > 0 else '-'}{'XYZ'[axis]} after {hold:g} s"},

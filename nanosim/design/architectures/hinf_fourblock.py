@@ -18,18 +18,20 @@ optimum damps the pair instead::
 ``"hinf"``). ``Wd`` is diagonal, in controller volts per unit of the reference channel
 (sensor V)::
 
-    Wd(s) = (h / |G(0)| + n_in / r_ref) * LP_N(s)
+    Wd(s) = (h / |G(0)| * wb / (s + wb) + n_in / r_ref) * LP_N(s)
 
 * ``h`` -- the piezo's hysteresis, the input-referred disturbance the loop rejects: the loop
   width of the paper's Fig. 14 (:data:`HYSTERESIS_FRACTION`), referred to the actuator input
   through the identified static gain (``|G(0)|``, the smallest singular value: the least
-  favourable direction). The hysteresis error follows the command, and the command of a step
-  (the paper's 2 um step, the loop's own test) has content up to the Nyquist frequency, so
-  the level is flat up to ``LP_N``; in particular it covers the first pair, where an input
-  disturbance rings the stage through ``SG``. (``disturbance_weight(..., bandwidth_hz=fb)``
-  gives the band-limited variant ``h / |G(0)| * wb / (s + wb)``, a command assumed limited to
-  ``fb``: it weights ``SG`` at the pair ``fb / f_pair`` times less, and the optimum leaves the
-  pair less damped.)
+  favourable direction).
+* ``wb`` -- the hysteresis error follows the command, and the loop's command follows the
+  reference through ``T``: its content falls above the closed loop's complementary-sensitivity
+  bandwidth, the paper's 59 Hz (:data:`DISTURBANCE_BANDWIDTH_HZ`; ``PAPER["bwT"]``). At the first
+  pair (~176 Hz) the weight is a third of its low-frequency level, enough for the optimum to damp
+  the pair; at the 450-470 Hz pair, where ``Wt`` is about 20 and no loop of this bandwidth can damp,
+  an eighth. (``disturbance_bandwidth_hz=None``: flat up to ``LP_N``. The weighted ``Wt S G Wd``
+  at the higher modes then dominates gamma, every block is relaxed by as much, and ``S`` keeps
+  a low-frequency shoulder that slows the step's last 2 %.)
 * ``n_in / r_ref`` -- the broadband floor: the input-referred noise per sample of the DAC and
   the amplifier (:data:`nanosim.constants.DAC_WHITE_NOISE_V`, :data:`~nanosim.constants.AMPLIFIER_NOISE_V`,
   summed in power) against the reference scale of the paper's 2 um step (:data:`REFERENCE_STEP_UM`);
@@ -54,11 +56,14 @@ then :data:`GAMMA_MARGIN` above the smallest such gamma, where the central contr
 well conditioned) -> 4 kHz by Tustin (:func:`to_discrete`, the inverse of the model's
 conversion, so the discrete loop is the Tustin image of the designed one).
 
-The exported loop has one degree of freedom, ``u = K (r - y)``: its reference-to-error response
-is the ``S`` the bandwidth requirement is stated on. A reference prefilter (second degree of
-freedom) ``u = K (F r - y)``, ``F`` critically damped at the paper's T bandwidth (59 Hz), is
-available (``reference_prefilter=True``, :func:`with_reference_prefilter`): it leaves the
-feedback loop unchanged but slows the reference path, and so the measured ``r -> e`` bandwidth.
+The exported loop has two degrees of freedom, ``u = K (F r - y)``: ``F`` notches the reference at
+the closed loop's ringing pairs (:func:`nanosim.design.architectures.prefilter.design_reference_prefilter`:
+the pairs of ``T_ry`` with ``zeta < 0.1`` above 100 Hz that carry at least 1 % of a step, zeros on the
+pair and pole damping 0.7, the same filter on every axis). The damped first pair would otherwise
+ring through the 2 % band of a step for several of its decay times ``1 / (zeta w)``; feedback, margins, mu and noise are
+those of ``K`` alone. The S bandwidth is the feedback loop's, ``(I + G K)^-1``
+(:func:`nanosim.experiments.bandwidth.bandwidth` measures it so); ``reference_prefilter=False``
+exports the one-degree-of-freedom ``u = K (r - y)``.
 
 Tuning rule. In the four-block problem the achieved gamma is set by the disturbance blocks
 (the first pair's ``SG`` against the paper's ``Wt``, which bounds ``T`` near the pair), and the
@@ -89,9 +94,9 @@ from nanosim.design.weights import Weights
 from nanosim.paper import PAPER
 
 __all__ = ["design_hinf_fourblock", "fourblock_plant", "disturbance_weight", "synthesize", "to_discrete",
-           "mode_damping", "mode_damping_table", "least_damping_near", "scaled_wp", "with_reference_prefilter",
+           "mode_damping", "mode_damping_table", "least_damping_near", "scaled_wp",
            "input_noise_V", "TUNING_RULE", "REDUCED_ORDER", "HYSTERESIS_FRACTION", "REFERENCE_STEP_UM",
-           "GAMMA_MARGIN", "RESONANT_PEAK", "PREFILTER_ZETA"]
+           "GAMMA_MARGIN", "RESONANT_PEAK", "DISTURBANCE_BANDWIDTH_HZ"]
 
 # states of the design model: the pipeline's reduced order (nanosim.constants.DEFAULT_REDUCED_ORDER)
 REDUCED_ORDER = constants.DEFAULT_REDUCED_ORDER
@@ -105,8 +110,8 @@ GAMMA_MARGIN = 1.1
 # a closed-loop pole of the first pair counts when its resonance amplifies a loop input at least this much
 # (peak of mode_damping, sensor V per input unit): the identified model's per-column copies of a mode stay below
 RESONANT_PEAK = 1.0
-# damping of the reference prefilter (critically damped: no overshoot of its own)
-PREFILTER_ZETA = 1.0
+# corner of the hysteresis part of Wd [Hz]: the paper's T bandwidth (the command follows the reference through T)
+DISTURBANCE_BANDWIDTH_HZ = float(PAPER["bwT"])
 # Wp's corner-frequency scale: searched in [1, this], to this relative width
 PERFORMANCE_SCALE_MAX = 16.0
 PERFORMANCE_SCALE_RTOL = 0.05
@@ -116,10 +121,10 @@ GAMMA_RTOL = 0.01
 GRID_SLACK = 1.05
 TUNING_RULE = ("four-block H-infinity (S, SG, KS, T; Skogestad & Postlethwaite Sec. 9.3) on the "
                f"{REDUCED_ORDER}-state reduced identified model: the paper's Wp, Wt, Wu and an input-disturbance "
-               "weight Wd from the hysteresis width (Fig. 14) and the DAC + amplifier input noise, flat to the "
-               "Nyquist low-pass; the paper's Wp moved up in frequency by the smallest "
+               "weight Wd from the hysteresis width (Fig. 14), band-limited at the paper's T bandwidth (59 Hz), "
+               "and the DAC + amplifier input noise; the paper's Wp moved up in frequency by the smallest "
                "factor whose predicted S bandwidth meets the paper's 32 Hz; gamma 1.1 x the smallest verified; Tustin "
-               "both ways; one degree of freedom u = K (r - y)")
+               "both ways; the reference notched at the closed loop's ringing pairs, u = K (F r - y)")
 
 
 def input_noise_V() -> float:
@@ -173,7 +178,9 @@ def disturbance_weight(G0, dt: float = DT_S, *, bandwidth_hz: float | None = Non
              "hysteresis_fraction": hysteresis, "hysteresis_source": "paper Fig. 14 open-loop loop width (15 % / 14 %)",
              "sigma_min_G0": g_min, "low_frequency_level": low, "corner_hz": fb,
              "corner_source": ("none: a step command has content up to the Nyquist frequency, and the hysteresis "
-                               "error follows the command" if fb is None else "given (bandwidth_hz)"),
+                               "error follows the command" if fb is None else
+                               "the paper's T bandwidth: the command follows the reference through T"
+                               if fb == DISTURBANCE_BANDWIDTH_HZ else "given (bandwidth_hz)"),
              "input_noise_V": input_noise_V(),
              "input_noise_source": "hypot(nanosim.constants.DAC_WHITE_NOISE_V, AMPLIFIER_NOISE_V), per sample",
              "reference_scale_V": r_ref_V, "floor_level": floor, "nyquist_lowpass_hz": 0.5 / dt,
@@ -366,36 +373,6 @@ def least_damping_near(modes: list[dict], f_hz: float, rel: float = 0.05, rel_pe
     return min(m["zeta"] for m in near if m["peak"] >= rel_peak * top)
 
 
-def with_reference_prefilter(Kd, f_hz: float | None = None, zeta: float = PREFILTER_ZETA):
-    """``u = K (F r - y)`` as a two-degree-of-freedom controller with inputs ``[e; y]``.
-
-    ``F(s) = w^2 / (s^2 + 2 zeta w s + w^2)`` per axis, ``w = 2 pi f_hz`` (default the paper's T bandwidth, 59 Hz),
-    Tustin prewarped at ``w``. With ``r = e + y``: ``u = K F e + K (F - I) y``; the feedback part, ``-K y``, is
-    ``Kd``'s, so margins, mu and the closed-loop poles of the loop are those of ``Kd`` (plus ``F``'s own poles).
-
-    Returns
-    -------
-    control.StateSpace
-        Discrete, inputs ``[e (ny); y (ny)]``, states ``[F (2 ny); K]``.
-    """
-    import control as ct
-    from scipy.linalg import block_diag
-    dt = float(Kd.dt)
-    f = float(PAPER["bwT"] if f_hz is None else f_hz)
-    w = 2 * math.pi * f
-    F1 = ct.ss(ct.c2d(ct.tf([w * w], [1.0, 2 * zeta * w, w * w]), dt, "tustin", prewarp_frequency=w))
-    ny = Kd.ninputs
-    AF, BF, CF, DF = (block_diag(*[np.asarray(m, float)] * ny) for m in (F1.A, F1.B, F1.C, F1.D))
-    Ak, Bk, Ck, Dk = (np.asarray(m, float) for m in (Kd.A, Kd.B, Kd.C, Kd.D))
-    I_y, Z = np.eye(ny), np.zeros((ny, ny))
-    Bv, By = np.hstack([I_y, I_y]), np.hstack([Z, I_y])           # v = e + y = r, and y
-    A = np.block([[AF, np.zeros((AF.shape[0], Ak.shape[0]))], [Bk @ CF, Ak]])
-    B = np.vstack([BF @ Bv, Bk @ (DF @ Bv - By)])
-    C = np.hstack([Dk @ CF, Ck])
-    D = Dk @ (DF @ Bv - By)
-    return ct.ss(A, B, C, D, dt)
-
-
 def mode_damping_table(Gd, Kd, *, delay_samples: int = LOOP_DELAY_SAMPLES, Ky=None) -> list[dict]:
     """For each lightly damped mode of ``Gd`` (:func:`~nanosim.design.architectures.common.distinct_modes_hz`):
     its open-loop damping and the least closed-loop damping near it (:func:`least_damping_near`).
@@ -425,8 +402,8 @@ def scaled_wp(Wp, scale: float):
 @single_threaded_blas
 def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES,
                           reduced_order: int = REDUCED_ORDER, weights=None,
-                          bandwidth_hz: float | None = None, reference_prefilter: bool = False,
-                          disturbance_bandwidth_hz: float | None = None) -> BenchDesign:
+                          bandwidth_hz: float | None = None, reference_prefilter: bool = True,
+                          disturbance_bandwidth_hz: float | None = DISTURBANCE_BANDWIDTH_HZ) -> BenchDesign:
     """The four-block H-infinity design of the module docstring.
 
     Parameters
@@ -444,17 +421,18 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELA
     bandwidth_hz : float or None
         The required S bandwidth of the tuning rule; None: the paper's 32 Hz.
     reference_prefilter : bool
-        Add the reference prefilter (:func:`with_reference_prefilter`); False (default): the
-        one-degree-of-freedom loop, whose reference-to-error bandwidth is its S bandwidth.
+        True (default): notch the reference at the closed loop's ringing pairs
+        (:func:`~nanosim.design.architectures.prefilter.design_reference_prefilter`); False: the
+        one-degree-of-freedom loop ``u = K (r - y)``.
     disturbance_bandwidth_hz : float or None
-        Corner of the hysteresis part of ``Wd`` (:func:`disturbance_weight`); None (default): flat to
-        the Nyquist low-pass.
+        Corner of the hysteresis part of ``Wd`` (:func:`disturbance_weight`) [Hz]; default the paper's
+        T bandwidth (:data:`DISTURBANCE_BANDWIDTH_HZ`); None: flat to the Nyquist low-pass.
 
     Returns
     -------
     BenchDesign
-        Inputs ``[e; y]`` with the prefilter (``e`` only without); ``parameters`` holds gamma, the order, the
-        weights and their sources.
+        Inputs ``[e; y]`` with the prefilter (``e`` only without, or when no pair rings); ``parameters``
+        holds gamma, the order, the weights and their sources.
     """
     import control as ct
 
@@ -519,8 +497,9 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELA
                                              "(Wp(s / b)) whose predicted S bandwidth on the identified model meets "
                                              "the required 32 Hz (the paper's), stated up front",
                                  "Wd": "module nanosim.design.architectures.hinf_fourblock: hysteresis width (Fig. 14) "
-                                       "through sigma_min(G(0)) plus the DAC + amplifier input noise, flat to the "
-                                       "Nyquist low-pass (a step command's content)"},
+                                       "through sigma_min(G(0)), band-limited at the paper's T bandwidth (the "
+                                       "command follows the reference through T), plus the DAC + amplifier "
+                                       "input noise, to the Nyquist low-pass"},
               "generalized_plant": "w = [r; d], y = G (u + Wd d), e = r - y, z = [Wp e; Wu u; Wt y], v = e",
               "discretization": "tustin (design model: inverse Tustin of the identified discrete model)",
               "design_model_delay_samples": int(delay_samples), "loop_delay_samples": int(delay_samples),
@@ -530,10 +509,8 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELA
     if not reference_prefilter:
         params["reference_prefilter"] = None
         return BenchDesign("hinf", Kd, ny, TUNING_RULE, params)
-    K2 = with_reference_prefilter(Kd)
+    from nanosim.design.architectures.prefilter import design_reference_prefilter
+    K2, prefilter = design_reference_prefilter(Gd, Kd, ny, delay_samples=delay_samples, dt=dt)
     params.update({"controller_order": int(K2.nstates), "feedback_order": int(Kd.nstates),
-                   "reference_prefilter": {"form": "F(s) = w^2 / (s^2 + 2 zeta w s + w^2) per axis, u = K (F r - y)",
-                                           "freq_hz": float(PAPER["bwT"]), "zeta": PREFILTER_ZETA,
-                                           "source": "the paper's T bandwidth (59 Hz), critically damped",
-                                           "prefilter_states": int(K2.nstates - Kd.nstates)}})
+                   "reference_prefilter": prefilter})
     return BenchDesign("hinf", K2, ny, TUNING_RULE, params)
