@@ -19,6 +19,14 @@ hysteresis cancels; the thermally activated operators of
 :mod:`nanosim.plant.piezo` relax between samples (creep, rate dependence),
 which the rate-independent inverse does not model and leaves as a residual.
 
+Identified from a measured loop (:func:`fit_prandtl_ishlinskii`): on fixed thresholds the PI
+operator is linear in its weights, so a recorded command ``v`` and the actuator-referred output
+``h`` give the weights by non-negative least squares over the play outputs
+(Fleming & Leang 2014, Sec. 11.3). :class:`InversePI` inverts such a fitted operator, normalised
+to the record's least-squares slope ``k = <h, v> / <v, v>``: the compensated actuator is linear with
+the actuator's average gain over the record, between its slope right after a reversal (``w_0``) and
+that of a long monotone move, the range the design's uncertainty set spans.
+
 References
 ----------
 P. Krejci and K. Kuhnen, "Inverse control of systems with hysteresis and
@@ -37,7 +45,11 @@ from nanosim.plant.piezo import PiezoConfig, PrandtlIshlinskii
 from nanosim.validation import as_finite_array
 
 __all__ = ["inverse_prandtl_ishlinskii", "InversePIFeedforward", "HysteresisCompensatedController",
-           "FEEDFORWARD_CHOICES"]
+           "FEEDFORWARD_CHOICES", "PIModel", "play_outputs", "fit_prandtl_ishlinskii", "fit_thresholds_V", "InversePI",
+           "FIT_OPERATORS"]
+
+# plays of a fitted operator (besides the linear term): thresholds spread evenly over half the fitted span
+FIT_OPERATORS = 9
 
 # names accepted by the experiments' ``feedforward`` option (None: no compensation)
 FEEDFORWARD_CHOICES = ("inverse-pi",)
@@ -92,6 +104,163 @@ def inverse_prandtl_ishlinskii(thresholds_V, weights, linear_weight: float) -> t
     r_inv = np.array([float(ww[:j + 1] @ (rr[j] - rr[:j + 1])) for j in range(1, rr.size)])
     w_inv = -w / (cum[1:] * cum[:-1])
     return r_inv, w_inv, 1.0 / w0
+
+
+def play_outputs(v, thresholds_V) -> np.ndarray:
+    """Outputs of play operators with ``thresholds_V`` driven by ``v`` from the virgin state (all 0).
+
+    Parameters
+    ----------
+    v : array_like, shape (N,)
+        Input.
+    thresholds_V : array_like, shape (n,)
+        Thresholds ``r_i >= 0`` (input units).
+
+    Returns
+    -------
+    ndarray, shape (N, n)
+        ``z_i[k] = clamp(z_i[k-1], v[k] - r_i, v[k] + r_i)``, ``z_i[-1] = 0``.
+    """
+    v = as_finite_array("v", v, ndim=1)
+    r = as_finite_array("thresholds_V", thresholds_V, ndim=1)
+    if np.any(r < 0):
+        raise ValueError(f"thresholds_V: expected values >= 0, got {r.tolist()}")
+    z = np.zeros(r.size)
+    out = np.empty((v.size, r.size))
+    for k, vk in enumerate(v):
+        z = np.minimum(np.maximum(z, vk - r), vk + r)
+        out[k] = z
+    return out
+
+
+def fit_thresholds_V(span_V: float, n: int = FIT_OPERATORS) -> np.ndarray:
+    """``n`` thresholds ``r_i = i span / (2 (n + 1))``: a play engages after a reversal of ``2 r_i``, so
+    these cover reversals up to the span.
+    """
+    a = float(span_V)
+    if not np.isfinite(a) or a <= 0:
+        raise ValueError(f"span_V: expected a finite value > 0, got {span_V!r}")
+    if isinstance(n, bool) or int(n) != n or n < 1:
+        raise ValueError(f"n: expected an integer >= 1, got {n!r}")
+    return a * np.arange(1, int(n) + 1) / (2 * (int(n) + 1))
+
+
+@dataclass(frozen=True, eq=False)
+class PIModel:
+    """A Prandtl-Ishlinskii operator ``h = w_0 v + sum_i w_i P_{r_i}[v]`` fitted to a record.
+
+    Attributes
+    ----------
+    thresholds_V : ndarray, shape (n,)
+        ``r_i`` [controller V].
+    weights : ndarray, shape (n,)
+        ``w_i >= 0`` [output units per controller V].
+    linear_weight : float
+        ``w_0 > 0``: the slope right after a reversal.
+    residual_rms : float
+        RMS of ``h - PI[v]`` over the record [output units].
+    output_rms : float
+        RMS of ``h - mean(h)`` [output units].
+    mean_slope : float
+        ``<h, v> / <v, v>`` over the record [output units per controller V].
+    """
+
+    thresholds_V: np.ndarray
+    weights: np.ndarray
+    linear_weight: float
+    residual_rms: float
+    output_rms: float
+    mean_slope: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready parameters."""
+        return {"thresholds_controller_V": self.thresholds_V.tolist(), "weights": self.weights.tolist(),
+                "linear_weight": self.linear_weight, "mean_slope": self.mean_slope,
+                "fit_residual_percent": 100 * self.residual_rms / self.output_rms,
+                "form": "h = w0 v + sum_i w_i play_{r_i}[v], weights by non-negative least squares"}
+
+
+def fit_prandtl_ishlinskii(v, h, thresholds_V) -> PIModel:
+    """Weights of the PI operator on ``thresholds_V`` that best map ``v`` to ``h`` (non-negative least squares).
+
+    Parameters
+    ----------
+    v : array_like, shape (N,) or (N, m)
+        Commands [controller V], from rest at 0 (several columns: records of the same operator, stacked).
+    h : array_like, same shape as ``v``
+        Actuator-referred outputs, from 0 at the start of each record.
+    thresholds_V : array_like, shape (n,)
+        ``r_i > 0``, strictly increasing.
+
+    Returns
+    -------
+    PIModel
+
+    Examples
+    --------
+    >>> v = np.concatenate([np.linspace(0, 2, 50), np.linspace(2, 0, 50)])
+    >>> h = v + 0.5 * play_outputs(v, [0.5])[:, 0]
+    >>> m = fit_prandtl_ishlinskii(v, h, [0.5])
+    >>> round(m.linear_weight, 6), np.round(m.weights, 6).tolist()
+    (1.0, [0.5])
+    """
+    from scipy.optimize import nnls
+    v = np.asarray(v, dtype=float)
+    h = np.asarray(h, dtype=float)
+    if v.ndim == 1:
+        v, h = v[:, None], h[:, None] if h.ndim == 1 else h
+    as_finite_array("v", v, ndim=2)
+    as_finite_array("h", h, shape=v.shape)
+    r = as_finite_array("thresholds_V", thresholds_V, ndim=1)
+    if r.size == 0 or np.any(r <= 0) or np.any(np.diff(r) <= 0):
+        raise ValueError(f"thresholds_V: expected strictly increasing values > 0, got {r.tolist()}")
+    if v.shape[0] < 2 * (r.size + 1):
+        raise ValueError(f"v: expected at least {2 * (r.size + 1)} samples for {r.size} plays, got {v.shape[0]}")
+    A = np.vstack([np.column_stack([v[:, j], play_outputs(v[:, j], r)]) for j in range(v.shape[1])])
+    b = h.T.reshape(-1)
+    x, res = nnls(A, b)
+    if x[0] <= 0:
+        raise ValueError("h: the fit has no linear term (w0 = 0): the record does not reverse the command")
+    vv = v.T.reshape(-1)
+    return PIModel(thresholds_V=r.copy(), weights=x[1:], linear_weight=float(x[0]),
+                   residual_rms=float(res / np.sqrt(b.size)), output_rms=float(np.std(b)),
+                   mean_slope=float(b @ vv / (vv @ vv)))
+
+
+class InversePI:
+    """The inverse of a fitted :class:`PIModel`, normalised to the record's mean slope.
+
+    ``u_ff = H^-1[u]`` with ``H = PI / k``, ``k`` = :attr:`PIModel.mean_slope`: in front of the
+    actuator the cascade maps ``u`` to ``k u``, the actuator's average gain over the fitted record.
+    Stateful as :class:`InversePIFeedforward`.
+
+    Parameters
+    ----------
+    model : PIModel
+    n_channels : int
+        Actuator channels (the same operator on each).
+    """
+
+    def __init__(self, model: PIModel, n_channels: int = 3):
+        if not isinstance(model, PIModel):
+            raise TypeError(f"model: expected a PIModel, got {type(model).__name__}")
+        k = model.mean_slope
+        r_inv, w_inv, w0_inv = inverse_prandtl_ishlinskii(model.thresholds_V, model.weights / k,
+                                                          model.linear_weight / k)
+        self.model = model
+        self._op = PrandtlIshlinskii(r_inv, w_inv, w0_inv, n_channels=int(n_channels))
+
+    def reset(self) -> None:
+        """Virgin state."""
+        self._op.reset()
+
+    def step(self, u_V) -> np.ndarray:
+        """Pre-distort one sample ``u_V`` shape ``(n_channels,)`` [controller V]."""
+        return self._op.step(np.asarray(u_V, dtype=float))
+
+    def run(self, u_V) -> np.ndarray:
+        """Pre-distort a sequence ``u_V`` shape ``(N, n_channels)``."""
+        return self._op.run(np.asarray(u_V, dtype=float))
 
 
 @dataclass(frozen=True, eq=False)
@@ -177,8 +346,9 @@ class HysteresisCompensatedController:
             if not callable(getattr(controller, name, None)):
                 raise TypeError(f"controller: expected a DiscreteController with {name}(), "
                                 f"got {type(controller).__name__}")
-        if not isinstance(feedforward, InversePIFeedforward):
-            raise TypeError(f"feedforward: expected an InversePIFeedforward, got {type(feedforward).__name__}")
+        if not isinstance(feedforward, (InversePIFeedforward, InversePI)):
+            raise TypeError(f"feedforward: expected an InversePIFeedforward or InversePI, "
+                            f"got {type(feedforward).__name__}")
         self.controller = controller
         self.feedforward = feedforward
 

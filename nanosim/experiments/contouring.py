@@ -11,8 +11,8 @@ from nanosim.experiments.loop import (
     INTERPOLATION_S,
     LoopTrace,
     StageFactory,
-    check_feedforward,
     compensate,
+    resolve_feedforward,
     interpolate,
     run_closed_loop,
 )
@@ -53,15 +53,16 @@ def contouring(factory: StageFactory, controller, seed=0,
                speeds_um_s=(10, 30, 100, 300, PAPER_CONTOUR_SPEED_UM_S), feedforward: str | None = None) -> list:
     """Run the contour at each speed (um/s); returns a list of :class:`ContourCase`.
 
-    ``feedforward="inverse-pi"``: the controller's command passes the inverse of the stage's
-    Prandtl-Ishlinskii operators (:func:`~nanosim.experiments.loop.compensate`).
+    ``feedforward="inverse-pi"``: the controller's command passes the inverse of the piezo's
+    Prandtl-Ishlinskii operator fitted on the stage
+    (:func:`~nanosim.experiments.loop.fit_feedforward`, :func:`~nanosim.experiments.loop.compensate`).
     """
-    check_feedforward(feedforward)
+    ffm = resolve_feedforward(factory, seed, feedforward)
     cases = []
     for v in speeds_um_s:
         ref = contour_reference(v)
         stage = factory(stream_seed(seed, "contouring"))
-        cl = run_closed_loop(stage, compensate(stage, controller, feedforward)[1], ref)
+        cl = run_closed_loop(stage, compensate(stage, controller, ffm)[1], ref)
         x, y = cl.y_um[:, 0], cl.y_um[:, 1]
         moving = (ref[:, 0] > 0.5) & (ref[:, 0] < 19.5)
         d = np.abs(x - y)[moving] / np.sqrt(2) * 1e3          # distance to the 45 degree path

@@ -10,8 +10,8 @@ from nanosim.experiments.loop import (
     FS,
     LoopTrace,
     StageFactory,
-    check_feedforward,
     compensate,
+    resolve_feedforward,
     plateaus,
     run_closed_loop,
 )
@@ -62,16 +62,17 @@ def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel
     """Open-loop loop on actuator A (0 -> 1.65 -> 0 V) and the closed-loop 20 um triangle and staircase.
 
     ``feedforward="inverse-pi"`` pre-distorts the open-loop command through the inverse of the
-    stage's Prandtl-Ishlinskii operators and puts the same inverse behind the controller
-    (:func:`compensate`); the loop width is measured against the undistorted command.
+    piezo's Prandtl-Ishlinskii operator identified on the stage beforehand
+    (:func:`~nanosim.experiments.loop.fit_feedforward`) and puts the same inverse behind the controller
+    (:func:`~nanosim.experiments.loop.compensate`); the loop width is measured against the undistorted command.
     """
-    check_feedforward(feedforward)
+    ffm = resolve_feedforward(factory, seed, feedforward)
     n = int(duration_s * FS)
     tri = np.concatenate([np.linspace(0, 1, n // 2), np.linspace(1, 0, n - n // 2)])
     u = np.zeros((n, 3))
     u[:, 0] = 1.65 * tri
     stage = factory(stream_seed(seed, "hysteresis", 0))
-    ff, _ = compensate(stage, controller, feedforward)
+    ff, _ = compensate(stage, controller, ffm)
     tr = stage.run(u if ff is None else ff.run(u))
     y = tr.sensor_um - tr.sensor_um[0]
     travel = y[n // 2 - 1]
@@ -79,7 +80,7 @@ def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel
     ref = np.zeros((n, 3))
     ref[:, 0] = travel_um * tri
     stage = factory(stream_seed(seed, "hysteresis", 1))
-    _, ctrl = compensate(stage, controller, feedforward)
+    _, ctrl = compensate(stage, controller, ffm)
     cl = run_closed_loop(stage, ctrl, ref)
     lag_nm = _branch_gap(ref[:, 0], cl.y_um[:, 0]) * 1e3
     lv = np.linspace(0, travel_um, levels)
@@ -88,7 +89,7 @@ def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel
     sref = np.zeros((len(seq) * nd, 3))
     sref[:, 0] = np.repeat(seq, nd)
     stage = factory(stream_seed(seed, "hysteresis", 2))
-    _, ctrl = compensate(stage, controller, feedforward)
+    _, ctrl = compensate(stage, controller, ffm)
     st = run_closed_loop(stage, ctrl, sref)
     settled, _ = plateaus(st.y_um[:, 0], nd, len(seq))
     up, down = settled[:levels], settled[levels - 1:][::-1]

@@ -17,11 +17,19 @@ import numpy as np
 
 from nanosim import constants as C
 from nanosim.design.controller import DiscreteController
-from nanosim.design.feedforward import FEEDFORWARD_CHOICES, HysteresisCompensatedController, InversePIFeedforward
+from nanosim.design.feedforward import (
+    FEEDFORWARD_CHOICES,
+    HysteresisCompensatedController,
+    InversePI,
+    PIModel,
+    fit_prandtl_ishlinskii,
+    fit_thresholds_V,
+)
 
 __all__ = ["FS", "UM_PER_V", "LoopTrace", "run_closed_loop", "StageFactory", "plateaus", "step_metrics",
            "INTERPOLATION_S", "interpolate", "LoopProtocol", "LOOP_PROTOCOL", "start_controller",
-           "check_feedforward", "compensate"]
+           "check_feedforward", "compensate", "fit_feedforward", "resolve_feedforward", "FIT_TURNING_POINTS_V",
+           "FIT_RATE_V_PER_S"]
 
 FS = C.CONTROL_RATE_HZ
 UM_PER_V = C.SENSOR_UM_PER_V
@@ -187,18 +195,67 @@ def check_feedforward(feedforward) -> str | None:
     return feedforward
 
 
-def compensate(stage, controller, feedforward):
-    """``(open_loop, controller)`` for ``feedforward``: the inverse-PI pre-distortion of the stage's piezo
-    (``feedforward="inverse-pi"``, :class:`~nanosim.design.feedforward.InversePIFeedforward` of
-    ``stage.actuators.piezo_config``) and the controller followed by it; ``(None, controller)`` for None.
+# The feedforward's identification record, per actuator alone from rest: ramps through these turning points
+# (nested minor loops inside the Fig. 14 span 0 -> 1.65 V) at the Fig. 14 rate
+FIT_TURNING_POINTS_V = (0.0, 1.65, 0.2, 1.4, 0.4, 1.1, 0.6, 0.9, 0.0)
+FIT_RATE_V_PER_S = 1.65
+
+
+def _fit_command(points=FIT_TURNING_POINTS_V, rate_V_per_s: float = FIT_RATE_V_PER_S) -> np.ndarray:
+    pieces = [np.linspace(a, b, max(2, int(round(abs(b - a) / rate_V_per_s * FS))), endpoint=False)
+              for a, b in zip(points[:-1], points[1:])]
+    return np.concatenate(pieces + [np.array([points[-1]])])
+
+
+def fit_feedforward(factory, seed: int = 0) -> PIModel:
+    """The piezo's Prandtl-Ishlinskii operator identified on the stage (the inverse-PI feedforward's model).
+
+    Each actuator alone, from rest on a fresh stage (stream ``stream_seed(seed, "feedforward.fit", j)``),
+    runs the nested minor loops of :data:`FIT_TURNING_POINTS_V` open loop. Its reading is projected on
+    its principal direction (the actuator's column of the static gain, up to scale) and scaled to
+    controller volts by its least-squares slope; the three records are fitted together
+    (:func:`~nanosim.design.feedforward.fit_prandtl_ishlinskii`, :data:`~nanosim.design.feedforward.FIT_OPERATORS`
+    plays over the span).
     """
+    from nanosim.plant.noise import stream_seed
+    v = _fit_command()
+    V, H = [], []
+    for j in range(3):
+        u = np.zeros((v.size, 3))
+        u[:, j] = v
+        tr = factory(stream_seed(seed, "feedforward.fit", j)).run(u)
+        y = tr.sensor_um - tr.sensor_um[0]
+        g = np.linalg.svd(y - y.mean(axis=0), full_matrices=False)[2][0]
+        s = y @ g
+        s = s * np.sign(s @ v)
+        V.append(v)
+        H.append(s * (v @ v) / (s @ v))                  # controller-volt equivalent
+    return fit_prandtl_ishlinskii(np.column_stack(V), np.column_stack(H), fit_thresholds_V(max(FIT_TURNING_POINTS_V)))
+
+
+def resolve_feedforward(factory, seed: int, feedforward) -> PIModel | None:
+    """``feedforward`` as the experiments use it: None, or the operator :func:`fit_feedforward` identifies
+    for ``"inverse-pi"`` (a :class:`~nanosim.design.feedforward.PIModel` passes through).
+    """
+    if isinstance(feedforward, PIModel):
+        return feedforward
     if check_feedforward(feedforward) is None:
+        return None
+    return fit_feedforward(factory, seed)
+
+
+def compensate(stage, controller, feedforward: PIModel | None):
+    """``(open_loop, controller)`` for ``feedforward``: the inverse of the fitted operator
+    (:class:`~nanosim.design.feedforward.InversePI`, fresh state) as the open-loop pre-distortion and
+    behind the controller; ``(None, controller)`` for None.
+    """
+    if feedforward is None:
         return None, controller
+    if not isinstance(feedforward, PIModel):
+        raise ValueError(f"feedforward: expected None or a PIModel (resolve_feedforward), got {feedforward!r}")
     if getattr(stage, "closed_loop", None) is not None:
         raise ValueError("feedforward: a batched stage runs its loop itself; expected a single stage")
-    piezo = stage.actuators.piezo_config
-    return (InversePIFeedforward(piezo),
-            HysteresisCompensatedController(controller, InversePIFeedforward(piezo)))
+    return InversePI(feedforward), HysteresisCompensatedController(controller, InversePI(feedforward))
 
 
 StageFactory = Callable[[int], object]

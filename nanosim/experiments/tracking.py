@@ -11,8 +11,8 @@ from nanosim.experiments.loop import (
     FS,
     LoopTrace,
     StageFactory,
-    check_feedforward,
     compensate,
+    resolve_feedforward,
     interpolate,
     run_closed_loop,
 )
@@ -46,10 +46,11 @@ def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40)
              periods=3, axis=0, feedforward: str | None = None) -> list:
     """Triangles and sines of ``amplitude_um`` at each frequency, through the command interpolation.
 
-    ``feedforward="inverse-pi"``: the controller's command passes the inverse of the stage's
-    Prandtl-Ishlinskii operators (:func:`~nanosim.experiments.loop.compensate`).
+    ``feedforward="inverse-pi"``: the controller's command passes the inverse of the piezo's
+    Prandtl-Ishlinskii operator fitted on the stage
+    (:func:`~nanosim.experiments.loop.fit_feedforward`, :func:`~nanosim.experiments.loop.compensate`).
     """
-    check_feedforward(feedforward)
+    ffm = resolve_feedforward(factory, seed, feedforward)
     cases = []
     for kind in ("triangle", "sine"):
         for f in freqs_hz:
@@ -58,7 +59,7 @@ def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40)
             ref = np.zeros((n, 3))
             ref[:, axis] = _wave(kind, f, t, amplitude_um)
             stage = factory(stream_seed(seed, "tracking"))
-            cl = run_closed_loop(stage, compensate(stage, controller, feedforward)[1], interpolate(ref))
+            cl = run_closed_loop(stage, compensate(stage, controller, ffm)[1], interpolate(ref))
             keep = slice(int(1 / f * FS), n)
             e = cl.error_um[keep, axis] * 1e3
             tt = t[keep]
