@@ -182,7 +182,7 @@ def test_lqg_bandwidth_is_the_robust_rule_at_the_smallest_control_weight_it_meet
     to error is close to S; faster than the lqg on both counts."""
     from nanosim.design.architectures import BENCH, DESIGN_RULES, design
     from nanosim.design.architectures.common import reference_error_bandwidth_hz, sensitivity_bandwidth_hz
-    from nanosim.design.architectures.lqg import BANDWIDTH_CONTROL_WEIGHTS, ROBUST_MIN_DISK_MARGIN, design_lqg
+    from nanosim.design.architectures.lqg import BANDWIDTH_CONTROL_WEIGHTS, ROBUST_MIN_DISK_MARGIN, LqgRule
     assert "lqg-bandwidth" in DESIGN_RULES and "lqg-bandwidth" not in BENCH
     d = design("lqg-bandwidth", model)
     p = d.parameters
@@ -206,8 +206,8 @@ def test_lqg_bandwidth_is_the_robust_rule_at_the_smallest_control_weight_it_meet
     lqg = designs["lqg"].parameters
     assert bw >= 1.03 * lqg["predicted_bandwidth_S_hz"]
     assert p["predicted_bandwidth_ref_to_error_hz"] >= 1.2 * lqg["predicted_bandwidth_ref_to_error_hz"]
-    with pytest.raises(ValueError, match="seek_bandwidth: expected robust=True"):
-        design_lqg(model, robust=False, seek_bandwidth=True)
+    with pytest.raises(ValueError, match="control_weights: expected over_uncertainty=True"):
+        LqgRule(over_uncertainty=False, control_weights=(0.01,))
 
 
 def test_hinf_damped_uses_the_pipeline_defaults():

@@ -1,7 +1,12 @@
-"""Design layer: model reduction and H-infinity mixed-sensitivity control (paper Sec. 4).
+"""Design layer: the controller bench, its building blocks and the loop analysis (paper Sec. 4).
 
-Modules (no file output here; :func:`nanosim.pipeline.design.run_design` writes
-the artifacts and :mod:`nanosim.plots.design` draws the figures):
+Front door: :func:`design` (``design(name, G, **kwargs) -> BenchDesign``) designs a named member of
+:data:`REGISTRY` -- the bench's controllers, each with its tuning rule as a value (the LQG members:
+:class:`LqgRule` presets) -- from the identified model ``G``; :mod:`~nanosim.design.architectures` lists them.
+
+Below it, the building blocks and the analysis (no file output here;
+:func:`nanosim.pipeline.design.run_design` writes the artifacts and :mod:`nanosim.plots.design` draws
+the figures):
 
 * :mod:`~nanosim.design.lti` -- LTI helpers, units, sign convention, BLAS threading;
 * :mod:`~nanosim.design.reduction` -- balanced truncation, multiplicative uncertainty;
@@ -101,7 +106,13 @@ from nanosim.design.robustness import (
 )
 from nanosim.design.weights import PAPER_WEIGHTS, WEIGHT_NAMES, Weights, WeightSpec, paper_weights
 
+# the front door (after the blocks it is built on)
+from nanosim.design.architectures import BENCH, DESIGN_RULES, REGISTRY, BenchDesign, BenchMember, design  # noqa: E402
+from nanosim.design.architectures.lqg_rules import LqgRule  # noqa: E402
+
 __all__ = [
+    # the front door
+    "design", "REGISTRY", "BENCH", "DESIGN_RULES", "BenchMember", "BenchDesign", "LqgRule",
     # lti
     "SIGN_CONVENTION", "UNITS", "INV_SQRT2", "BANDWIDTH_DEFINITIONS", "AXIS_RTOL",
     "as_ss", "static_gain", "dc_gain", "freqresp", "sigma_max", "singular_values", "db",
