@@ -67,8 +67,8 @@ def test_every_bench_design_is_stable_with_the_identified_model(designs, model):
 
 def test_every_bench_design_sees_the_loop_as_run_the_identified_model_as_is(designs):
     """``nanosim identify``'s model already holds the loop's delay: no design adds a sample to it."""
-    from nanosim.design.architectures.common import LOOP_DELAY_SAMPLES
-    assert IDENTIFIED_DELAY_SAMPLES == 0 and LOOP_DELAY_SAMPLES == IDENTIFIED_DELAY_SAMPLES
+    from nanosim.design.robustness import RECORD_ROW_DELAY_SAMPLES
+    assert IDENTIFIED_DELAY_SAMPLES == 0 and RECORD_ROW_DELAY_SAMPLES == 1
     for name, d in designs.items():
         assert d.parameters["loop_delay_samples"] == 0, name
         assert d.parameters.get("design_model_delay_samples", 0) == 0, name

@@ -551,7 +551,7 @@ def test_loop_as_run_is_the_record_row_plant_delayed_by_one_sample():
     # run_closed_loop computes u_k from the reading y_k that stage.step(u_{k-1}) returned, and
     # stage.step(u_k) returns y_{k+1}.  In the convention of a record row (u_k, reading after
     # step(u_k)) -- the identified model's, LoopPlant.twin for a ZOH model -- the loop as run is
-    # that plant followed by exactly LOOP_DELAY_SAMPLES = 1 sample, to rounding error.
+    # that plant followed by exactly RECORD_ROW_DELAY_SAMPLES = 1 sample, to rounding error.
     from types import SimpleNamespace
 
     from nanosim.design.controller import DiscreteController
@@ -573,7 +573,7 @@ def test_loop_as_run_is_the_record_row_plant_delayed_by_one_sample():
         T = la.loop_transfer_ss(la.LoopPlant.twin(Gd).G, K, Ky, delay_samples=d).T_ry
         yp = ct.forced_response(T, U=r.T).outputs.T
         err[d] = np.abs(y - yp).max() / np.abs(y).max()
-    assert la.LOOP_DELAY_SAMPLES == 1
+    assert la.RECORD_ROW_DELAY_SAMPLES == 1
     assert err[1] < 1e-9
     assert err[0] > 1e-3 and err[2] > 1e-3
 

@@ -72,7 +72,7 @@ from nanosim.design.lti import (
 from nanosim.design.reduction import Reduction, multiplicative_uncertainty, reduce_model
 from nanosim.design.robustness import (
     IDENTIFIED_DELAY_SAMPLES,
-    LOOP_DELAY_SAMPLES,
+    RECORD_ROW_DELAY_SAMPLES,
     ROBUSTNESS_MAPS,
     STAGE_UNCERTAINTY,
     ControllerRobustness,
@@ -135,7 +135,7 @@ __all__ = [
     # controller
     "ControllerConfig", "DiscreteController",
     # robustness
-    "LOOP_DELAY_SAMPLES", "IDENTIFIED_DELAY_SAMPLES", "VISIBLE_PEAK", "electronics_ss", "pole_visibility",
+    "RECORD_ROW_DELAY_SAMPLES", "IDENTIFIED_DELAY_SAMPLES", "VISIBLE_PEAK", "electronics_ss", "pole_visibility",
     "ROBUSTNESS_MAPS", "STAGE_UNCERTAINTY", "UncertaintySet", "LoopPlant",
     "ControllerRobustness", "DiskMargin", "DiskMarginReport", "LeastDampedPole", "LoopResponse", "LoopStateSpace",
     "MuBounds", "RobustStabilityResult", "analyze_controller", "controller_systems", "closed_loop_poles",

@@ -17,7 +17,7 @@ from the reading ``y_k`` that ``Stage.step(u_{k-1})`` returned, and ``Stage.step
 returns ``y_{k+1}``.  A model identified from the rows of a record (``u_k`` and the
 reading after ``step(u_k)``, :mod:`nanosim.experiments.sysid`) therefore has a direct
 feedthrough, and the loop as run is that model times ``z^-1``:
-:data:`LOOP_DELAY_SAMPLES` = 1 (pinned by ``tests/test_loop_analysis.py``).  The
+:data:`RECORD_ROW_DELAY_SAMPLES` = 1 (pinned by ``tests/test_loop_analysis.py``).  The
 linear twin ``twin.npz`` is the standard zero-order-hold model ``y_k = C x_k + D u_k``;
 :meth:`LoopPlant.twin` moves it to the same convention, ``(A, B, C A, C B + D)``.
 """
@@ -70,7 +70,7 @@ from nanosim.design.uncertainty import (
 )
 
 __all__ = [
-    "LOOP_DELAY_SAMPLES", "ROBUSTNESS_MAPS", "DISK_MARGIN_TARGET", "STAGE_UNCERTAINTY", "UncertaintySet",
+    "RECORD_ROW_DELAY_SAMPLES", "ROBUSTNESS_MAPS", "DISK_MARGIN_TARGET", "STAGE_UNCERTAINTY", "UncertaintySet",
     "DiskMargin", "DiskMarginReport", "LeastDampedPole", "LoopResponse", "LoopStateSpace", "MuBounds",
     "RobustStabilityResult", "LoopPlant", "ControllerRobustness",
     "closed_loop_poles", "disk_gain_phase", "disk_margins", "frequency_response", "least_damped_pole",
@@ -81,7 +81,7 @@ __all__ = [
 
 # Samples between u_k computed from the reading y_k and its first effect on a reading,
 # counted from a model identified from (u_k, reading after step(u_k)) record rows.
-LOOP_DELAY_SAMPLES = 1
+RECORD_ROW_DELAY_SAMPLES = 1
 # The same for a model identified by nanosim.experiments.sysid, which pairs each command with the
 # reading the controller had when it computed it (the bench's data gathering): that model is the
 # loop as run, computation delay, amplifier and gauge included.
@@ -320,7 +320,7 @@ class LoopPlant:
         direct feedthrough).
     delay_samples : int
         Samples between a reading and the command computed from it, as run
-        (:data:`LOOP_DELAY_SAMPLES`).
+        (:data:`RECORD_ROW_DELAY_SAMPLES`).
     label : str
     G_continuous : control.StateSpace or None
         Continuous counterpart (only to place the analysis grid).
@@ -330,7 +330,7 @@ class LoopPlant:
     """
 
     G: ct.StateSpace
-    delay_samples: int = LOOP_DELAY_SAMPLES
+    delay_samples: int = RECORD_ROW_DELAY_SAMPLES
     label: str = "plant"
     G_continuous: ct.StateSpace | None = None
     input_gain_of_nominal: float = 1.0
@@ -351,7 +351,7 @@ class LoopPlant:
         """An identified model (``model.npz`` path or discrete StateSpace).
 
         ``delay_samples``: :data:`IDENTIFIED_DELAY_SAMPLES` for a model of
-        :mod:`nanosim.experiments.sysid`; :data:`LOOP_DELAY_SAMPLES` (+ the computation
+        :mod:`nanosim.experiments.sysid`; :data:`RECORD_ROW_DELAY_SAMPLES` (+ the computation
         delay) for a model identified from record rows. Its piezo gain is
         :data:`IDENTIFIED_INPUT_GAIN_OF_NOMINAL`.
         """
@@ -366,7 +366,7 @@ class LoopPlant:
         StateSpace) moved to the record-row convention ``(A, B, C A, C B + D)``, with the
         bench electronics (:func:`electronics_ss`; None: none, the ideal stage) around it.
 
-        The loop's delay is :data:`LOOP_DELAY_SAMPLES` plus the computation delay.
+        The loop's delay is :data:`RECORD_ROW_DELAY_SAMPLES` plus the computation delay.
         """
         Gc = None
         if isinstance(twin, (str, os.PathLike)):
@@ -374,7 +374,7 @@ class LoopPlant:
         t = _discrete_ss("twin", twin)
         A, B, C, D = (np.asarray(m, float) for m in (t.A, t.B, t.C, t.D))
         G = ct.ss(A, B, C @ A, C @ B + D, t.dt)
-        delay = LOOP_DELAY_SAMPLES
+        delay = RECORD_ROW_DELAY_SAMPLES
         if electronics is not None:
             act, gauge, comp = electronics_ss(electronics, float(t.dt), G.ninputs)
             G = G if act is None else ct.series(act, G)

@@ -144,7 +144,7 @@ def model_loop_delay_samples(model_npz) -> int:
     :data:`nanosim.design.robustness.IDENTIFIED_DELAY_SAMPLES` (0): ``nanosim identify``
     pairs each command with the reading the controller had, so its model has the loop's
     delays. (A model identified from record rows, ``u_k`` with the reading after
-    ``step(u_k)``, lacks :data:`~nanosim.design.robustness.LOOP_DELAY_SAMPLES` plus the
+    ``step(u_k)``, lacks :data:`~nanosim.design.robustness.RECORD_ROW_DELAY_SAMPLES` plus the
     computation delay: give it a ``loop_delay_samples`` entry.)
     """
     z = fileio.load_npz(model_npz, required=("A", "B", "C", "D"))
