@@ -268,18 +268,12 @@ def static_ss(M, dt: float = DT_S):
 # fast loop checks (frequency responses, disk margins through nanosim's loop analysis)
 # =====================================================================================
 def freqresp_z(sys_, freq_hz) -> np.ndarray:
-    """Frequency response of a discrete system, shape ``(F, ny, nu)``."""
-    A, B, C, D = (np.asarray(m, float) for m in (sys_.A, sys_.B, sys_.C, sys_.D))
-    f = np.asarray(freq_hz, float)
-    z = np.exp(2j * np.pi * f * float(sys_.dt))
-    if A.shape[0] == 0:
-        return np.broadcast_to(D, (f.size,) + D.shape).astype(complex)
-    lam, V = np.linalg.eig(A)
-    if np.linalg.cond(V) < 1e8:
-        CV, VB = C @ V, np.linalg.solve(V, B)
-        return D[None] + np.einsum("ik,fk,kj->fij", CV, 1.0 / (z[:, None] - lam[None]), VB)
-    n = A.shape[0]
-    return np.stack([D + C @ np.linalg.solve(zz * np.eye(n) - A, B) for zz in z])
+    """Frequency response of a discrete system, shape ``(F, ny, nu)`` (:func:`~nanosim.design.lti.ss_response`
+    at ``z = exp(j 2 pi f dt)``).
+    """
+    from nanosim.design.lti import ss_response
+    z = np.exp(2j * np.pi * np.asarray(freq_hz, float) * float(sys_.dt))
+    return ss_response(sys_.A, sys_.B, sys_.C, sys_.D, z)
 
 
 def analysis_grid_hz(dt: float = DT_S, n: int = 700, modes=()) -> np.ndarray:
@@ -307,9 +301,8 @@ def loop_at_a_time_alpha(Gf, Kf, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, 
     """
     if delay_samples:
         Gf = Gf * np.exp(-2j * np.pi * np.asarray(freq_hz) * delay_samples * dt)[:, None, None]
-    ny, nu = Gf.shape[1], Gf.shape[2]
-    So = np.linalg.inv(np.eye(ny) + Gf @ Kf)
-    Si = np.linalg.inv(np.eye(nu) + Kf @ Gf)
+    from nanosim.design.loops import sensitivities
+    So, Si = sensitivities(Gf, Kf)[2:]
     peak = max(np.abs(np.diagonal(So, axis1=1, axis2=2) - 0.5).max(),
                np.abs(np.diagonal(Si, axis1=1, axis2=2) - 0.5).max())
     return float(1.0 / peak)
