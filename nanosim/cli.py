@@ -141,12 +141,11 @@ def _check_controller(path, mjcf=None) -> Path:
     from nanosim.design.robustness import closed_loop_poles, controller_systems
     from nanosim.pipeline.design import twin_loop_plant
     from nanosim.pipeline.runfolder import verify_input_file
-    from nanosim.plant.linearize import linearize
-    from nanosim.plant.stage import Stage, StageConfig
+    from nanosim.plant.runplant import RunPlant
 
     p = verify_input_file(path, "--controller").resolve()       # a sealed run's controller must match it
     cfg = read_controller_file(p, dt=C.CONTROL_PERIOD_S, name="--controller")
-    plant = twin_loop_plant(linearize(Stage(config=StageConfig.ideal(), model=_load_mjcf(mjcf))).sysd_V)
+    plant = twin_loop_plant(RunPlant.of_model(_load_mjcf(mjcf)).twin.sysd_V)
     K, Ky = controller_systems(cfg)
     poles = closed_loop_poles(plant.G, K, Ky, plant.delay_samples)
     rho = float(np.max(np.abs(poles))) if poles.size else 0.0
