@@ -259,7 +259,8 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     prog = f"nanosim {args.command}"
-    with stop_signals():
+    from nanosim.design.robustness import analysis_memo
+    with stop_signals(), analysis_memo():           # one memory of loop analyses per command
         try:
             return int(args.func(args) or 0)
         except KeyboardInterrupt as exc:

@@ -25,6 +25,8 @@ linear twin ``twin.npz`` is the standard zero-order-hold model ``y_k = C x_k + D
 from __future__ import annotations
 
 import collections
+import contextlib
+import contextvars
 import dataclasses
 import hashlib
 import json
@@ -81,7 +83,7 @@ __all__ = [
     "loop_transfer_response", "loop_transfer_ss", "mu_lower_bound", "mu_upper_bound", "perturbed_plant",
     "robust_stability_mu", "robustness_summary", "sigma_max", "controller_systems", "analyze_controller",
     "stage_grid_hz", "pole_visibility", "VISIBLE_PEAK", "IDENTIFIED_DELAY_SAMPLES", "electronics_ss",
-    "IDENTIFIED_INPUT_GAIN_OF_NOMINAL",
+    "IDENTIFIED_INPUT_GAIN_OF_NOMINAL", "analysis_memo",
 ]
 
 # The six loop transfer matrices of robustness.json and its figure (LoopResponse names).
@@ -392,8 +394,9 @@ def analyze_controller(controller, plant, *, n_error: int | None = None, uncerta
     f = loop.check_freq(stage_grid_hz(plant, K, Ky) if freq_hz is None else freq_hz, increasing=True)
     key = _analysis_key(G, K, Ky, d, f, plant.label, uncertainty, mu, n_levels, n_random, seed,
                         plant.input_gain_of_nominal)
+    memo = _MEMO.get()
     with _ANALYSES_LOCK:
-        hit = _ANALYSES.get(key)
+        hit = None if memo is None else memo.get(key)
     if hit is not None:
         return dataclasses.replace(hit, summary=dict(hit.summary))
     poles = closed_loop_poles(G, K, Ky, d)
@@ -423,19 +426,39 @@ def analyze_controller(controller, plant, *, n_error: int | None = None, uncerta
     out = ControllerRobustness(label=plant.label, delay_samples=d, response=r, margins=rep, robust=res,
                                poles=poles, summary=summary, uncertainty=uncertainty if mu else None, mixed=mixed,
                                input_gain_of_nominal=plant.input_gain_of_nominal)
-    with _ANALYSES_LOCK:
-        _ANALYSES[key] = dataclasses.replace(out, summary=dict(summary))
-        while len(_ANALYSES) > _ANALYSES_KEPT:
-            _ANALYSES.popitem(last=False)
+    if memo is not None:
+        with _ANALYSES_LOCK:
+            memo[key] = dataclasses.replace(out, summary=dict(summary))
+            while len(memo) > _ANALYSES_KEPT:
+                memo.popitem(last=False)
     return out
 
 
-# the last analyses of this process, by the digest of everything they depend on: the robust LQG rule's
-# mixed-mu check of its chosen member and robustness.json's analysis of the exported controller are the same
-# computation (~12 s), done once
+# the analyses of the current command (analysis_memo), by the digest of everything they depend on: the robust LQG
+# rule's mixed-mu check of its chosen member and robustness.json's analysis of the exported controller are the same
+# computation (~12 s), done once within a command
 _ANALYSES_KEPT = 4
-_ANALYSES: collections.OrderedDict = collections.OrderedDict()
+_MEMO: contextvars.ContextVar = contextvars.ContextVar("nanosim_analysis_memo", default=None)
 _ANALYSES_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def analysis_memo():
+    """A scope (one command) in which :func:`analyze_controller` serves a repeated analysis from memory.
+
+    Inside the ``with`` block an analysis whose inputs (plant, controller, grid, uncertainty set, sampling) hash to
+    one already made returns a copy of it (the last :data:`_ANALYSES_KEPT`); outside any block every call
+    computes. Nested blocks share the outer memory. ``nanosim``'s commands and
+    :func:`nanosim.pipeline.design.run_design` run inside one.
+    """
+    if _MEMO.get() is not None:
+        yield
+        return
+    token = _MEMO.set(collections.OrderedDict())
+    try:
+        yield
+    finally:
+        _MEMO.reset(token)
 
 
 def _analysis_key(G, K, Ky, delay, f, label, uncertainty, mu, n_levels, n_random, seed, gain_of_nominal) -> str:

@@ -51,6 +51,7 @@ from nanosim.design.robustness import (
     IDENTIFIED_DELAY_SAMPLES,
     STAGE_UNCERTAINTY,
     LoopPlant,
+    analysis_memo,
     analyze_controller,
     controller_systems,
 )
@@ -299,6 +300,7 @@ def _input_ref(path, out_dir) -> dict:
 
 
 @single_threaded_blas
+@analysis_memo()             # the design's mu checks and robustness.json: one analysis of a loop
 def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=None, progress: bool = False,
                dt: float | None = None, figures: bool = True) -> Design:
     """Reduce, design, discretize and export (paper Sec. 4).

@@ -4,16 +4,12 @@ A rule says which LQG members (:func:`~nanosim.design.architectures.lqg_synthesi
 designed and which checks pick one of them; :func:`~nanosim.design.architectures.lqg.design_lqg` runs it.
 The presets are the bench's four LQG designs:
 
-=====================  ==========================  ==========================================================
-preset                 bench name                  rule
-=====================  ==========================  ==========================================================
-:meth:`LqgRule.robust`     ``lqg``                 robust over the uncertainty set (the exported default)
-:meth:`LqgRule.nominal`    ``lqg-nominal``         the identified modes and gain, disk margin only
-:meth:`LqgRule.gain_range` ``lqg-gain-range``      the robust rule with its disk margin at both ends of the
-                                                   set's piezo-gain range, designed at its top
-:meth:`LqgRule.bandwidth`  ``lqg-bandwidth``       the robust rule at the smallest control weight that meets
-                                                   every check, without the reference prefilter
-=====================  ==========================  ==========================================================
+* :meth:`LqgRule.robust` (``lqg``, the exported default): robust over the uncertainty set;
+* :meth:`LqgRule.nominal` (``lqg-nominal``): the identified modes and gain, the disk margin only;
+* :meth:`LqgRule.gain_range` (``lqg-gain-range``): the robust rule with its disk margin at both ends of the
+  set's piezo-gain range, designed at its top;
+* :meth:`LqgRule.bandwidth` (``lqg-bandwidth``): the robust rule at the smallest control weight that meets
+  every check, without the reference prefilter.
 
 A variant is a value too: ``dataclasses.replace(LqgRule.robust(), control_weight=0.01)``. The rule's
 sentence (:attr:`LqgRule.text`, the design's ``tuning_rule``) is built from its fields.
