@@ -4,21 +4,31 @@ Front door: :func:`design` (``design(name, G, **kwargs) -> BenchDesign``) design
 :data:`REGISTRY` -- the bench's controllers, each with its tuning rule as a value (the LQG members:
 :class:`LqgRule` presets) -- from the identified model ``G``; :mod:`~nanosim.design.architectures` lists them.
 
-Below it, the building blocks and the analysis (no file output here;
-:func:`nanosim.pipeline.design.run_design` writes the artifacts and :mod:`nanosim.plots.design` draws
-the figures):
+Below it (no file output here; :func:`nanosim.pipeline.design.run_design` writes the artifacts and
+:mod:`nanosim.plots.design` draws the figures):
 
-* :mod:`~nanosim.design.lti` -- LTI helpers, units, sign convention, BLAS threading;
+Building blocks
+
+* :mod:`~nanosim.design.lti` -- LTI helpers, units, sign convention, BLAS threading, the one state-space
+  response kernel (:func:`~nanosim.design.lti.ss_response`);
 * :mod:`~nanosim.design.reduction` -- balanced truncation, multiplicative uncertainty;
 * :mod:`~nanosim.design.weights` -- the weights Wp, Wt, Wu;
 * :mod:`~nanosim.design.hinf` -- generalized plant, assumptions, synthesis (:class:`Design`);
 * :mod:`~nanosim.design.damping` -- the inner active-damping loop (two degrees of freedom);
-* :mod:`~nanosim.design.loops` -- loop functions S, T, KS and their analysis;
 * :mod:`~nanosim.design.discretize` -- the discrete controller and its check;
-* :mod:`~nanosim.design.controller` -- the real-time discrete controller;
+* :mod:`~nanosim.design.feedforward` -- the inverse Prandtl-Ishlinskii operator;
+* :mod:`~nanosim.design.controller` -- the real-time discrete controller; :mod:`~nanosim.design.sos` -- its
+  second-order sections.
+
+Analysis
+
+* :mod:`~nanosim.design.loops` -- loop functions S, T, KS (the one sensitivity kernel,
+  :func:`~nanosim.design.loops.sensitivities`) and their analysis;
 * :mod:`~nanosim.design.robustness` -- robustness of any controller on the loop as run
-  (facade of :mod:`~nanosim.design.loopresponse`, :mod:`~nanosim.design.margins`,
-  :mod:`~nanosim.design.mu`, :mod:`~nanosim.design.uncertainty`; argument checks in
+  (facade of :mod:`~nanosim.design.loopplant` (the plant as the loop runs it and its delays),
+  :mod:`~nanosim.design.loopresponse` (loop maps), :mod:`~nanosim.design.margins`,
+  :mod:`~nanosim.design.mu` and :mod:`~nanosim.design.mixed_mu`, :mod:`~nanosim.design.uncertainty` and
+  :mod:`~nanosim.design.parametric` (the stage's uncertainty set); argument checks in
   :mod:`~nanosim.design.loopargs`).
 
 Plant ``G``: controller V -> sensor V; controller ``K``: error ``e = r - y``
