@@ -67,8 +67,8 @@ def test_every_bench_design_is_stable_with_the_identified_model(designs, model):
 
 def test_every_bench_design_sees_the_loop_as_run_the_identified_model_as_is(designs):
     """``nanosim identify``'s model already holds the loop's delay: no design adds a sample to it."""
-    from nanosim.design.architectures.common import LOOP_DELAY_SAMPLES
-    assert IDENTIFIED_DELAY_SAMPLES == 0 and LOOP_DELAY_SAMPLES == IDENTIFIED_DELAY_SAMPLES
+    from nanosim.design.robustness import RECORD_ROW_DELAY_SAMPLES
+    assert IDENTIFIED_DELAY_SAMPLES == 0 and RECORD_ROW_DELAY_SAMPLES == 1
     for name, d in designs.items():
         assert d.parameters["loop_delay_samples"] == 0, name
         assert d.parameters.get("design_model_delay_samples", 0) == 0, name
@@ -182,7 +182,7 @@ def test_lqg_bandwidth_is_the_robust_rule_at_the_smallest_control_weight_it_meet
     to error is close to S; faster than the lqg on both counts."""
     from nanosim.design.architectures import BENCH, DESIGN_RULES, design
     from nanosim.design.architectures.common import reference_error_bandwidth_hz, sensitivity_bandwidth_hz
-    from nanosim.design.architectures.lqg import BANDWIDTH_CONTROL_WEIGHTS, ROBUST_MIN_DISK_MARGIN, design_lqg
+    from nanosim.design.architectures.lqg import BANDWIDTH_CONTROL_WEIGHTS, ROBUST_MIN_DISK_MARGIN, LqgRule
     assert "lqg-bandwidth" in DESIGN_RULES and "lqg-bandwidth" not in BENCH
     d = design("lqg-bandwidth", model)
     p = d.parameters
@@ -206,8 +206,8 @@ def test_lqg_bandwidth_is_the_robust_rule_at_the_smallest_control_weight_it_meet
     lqg = designs["lqg"].parameters
     assert bw >= 1.03 * lqg["predicted_bandwidth_S_hz"]
     assert p["predicted_bandwidth_ref_to_error_hz"] >= 1.2 * lqg["predicted_bandwidth_ref_to_error_hz"]
-    with pytest.raises(ValueError, match="seek_bandwidth: expected robust=True"):
-        design_lqg(model, robust=False, seek_bandwidth=True)
+    with pytest.raises(ValueError, match="control_weights: expected over_uncertainty=True"):
+        LqgRule(over_uncertainty=False, control_weights=(0.01,))
 
 
 def test_hinf_damped_uses_the_pipeline_defaults():

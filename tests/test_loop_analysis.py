@@ -551,7 +551,7 @@ def test_loop_as_run_is_the_record_row_plant_delayed_by_one_sample():
     # run_closed_loop computes u_k from the reading y_k that stage.step(u_{k-1}) returned, and
     # stage.step(u_k) returns y_{k+1}.  In the convention of a record row (u_k, reading after
     # step(u_k)) -- the identified model's, LoopPlant.twin for a ZOH model -- the loop as run is
-    # that plant followed by exactly LOOP_DELAY_SAMPLES = 1 sample, to rounding error.
+    # that plant followed by exactly RECORD_ROW_DELAY_SAMPLES = 1 sample, to rounding error.
     from types import SimpleNamespace
 
     from nanosim.design.controller import DiscreteController
@@ -573,7 +573,7 @@ def test_loop_as_run_is_the_record_row_plant_delayed_by_one_sample():
         T = la.loop_transfer_ss(la.LoopPlant.twin(Gd).G, K, Ky, delay_samples=d).T_ry
         yp = ct.forced_response(T, U=r.T).outputs.T
         err[d] = np.abs(y - yp).max() / np.abs(y).max()
-    assert la.LOOP_DELAY_SAMPLES == 1
+    assert la.RECORD_ROW_DELAY_SAMPLES == 1
     assert err[1] < 1e-9
     assert err[0] > 1e-3 and err[2] > 1e-3
 
@@ -657,9 +657,10 @@ def test_analyze_controller_on_the_loop_as_run():
 
 
 def test_analyze_controller_repeats_are_served_once_and_stay_independent():
-    # the robust LQG rule's mu check and robustness.json analyse the same loop: the second call is a copy of
-    # the first (same numbers), a caller editing its summary does not change the next answer, and any
-    # change of the inputs (here the sampling seed or the controller) is a new analysis
+    # the robust LQG rule's mu check and robustness.json analyse the same loop within one command (an
+    # analysis_memo scope): the second call is a copy of the first (same numbers), a caller editing its summary
+    # does not change the next answer, and any change of the inputs (here the sampling seed or the controller) is
+    # a new analysis; outside a scope nothing is kept
     from nanosim.design import robustness as rb
 
     Gd, _ = stage()
@@ -667,19 +668,26 @@ def test_analyze_controller_repeats_are_served_once_and_stay_independent():
     plant = la.LoopPlant.twin(Gd)
     f = np.logspace(-1, np.log10(2000.0), 40)
     kw = dict(n_error=3, freq_hz=f, n_levels=2, n_random=2)
-    rb._ANALYSES.clear()
-    a = la.analyze_controller(K2, plant, **kw)
-    assert len(rb._ANALYSES) == 1
-    a.summary["peak_So"] = -1.0
-    b = la.analyze_controller(K2, plant, **kw)
-    assert len(rb._ANALYSES) == 1 and b.summary["peak_So"] > 1.0
-    assert b.summary["sampled_worst"] == a.summary["sampled_worst"]
-    c = la.analyze_controller(K2, plant, seed=1, **kw)
-    assert len(rb._ANALYSES) == 2 and c is not b
-    K3 = ct.ss(K2.A, K2.B, 0.5 * np.asarray(K2.C), 0.5 * np.asarray(K2.D), K2.dt)
-    d = la.analyze_controller(K3, plant, **kw)
-    assert len(rb._ANALYSES) == 3
-    assert np.abs(np.sort_complex(d.poles) - np.sort_complex(b.poles)).max() > 1e-3
+    assert rb._MEMO.get() is None
+    with rb.analysis_memo():
+        memo = rb._MEMO.get()
+        a = la.analyze_controller(K2, plant, **kw)
+        assert len(memo) == 1
+        a.summary["peak_So"] = -1.0
+        b = la.analyze_controller(K2, plant, **kw)
+        assert len(memo) == 1 and b.summary["peak_So"] > 1.0
+        assert b.summary["sampled_worst"] == a.summary["sampled_worst"]
+        with rb.analysis_memo():                        # a nested scope shares the outer memory
+            assert rb._MEMO.get() is memo
+        c = la.analyze_controller(K2, plant, seed=1, **kw)
+        assert len(memo) == 2 and c is not b
+        K3 = ct.ss(K2.A, K2.B, 0.5 * np.asarray(K2.C), 0.5 * np.asarray(K2.D), K2.dt)
+        d = la.analyze_controller(K3, plant, **kw)
+        assert len(memo) == 3
+        assert np.abs(np.sort_complex(d.poles) - np.sort_complex(b.poles)).max() > 1e-3
+    assert rb._MEMO.get() is None
+    e = la.analyze_controller(K2, plant, **kw)
+    assert e.summary["sampled_worst"] == b.summary["sampled_worst"] and e.summary["peak_So"] == b.summary["peak_So"]
 
 def test_perturbed_plant_moves_the_modes_not_the_signal_chain_filters():
     # The gauge's Tustin-discretized Butterworth (3 identical channels, poles in the left half

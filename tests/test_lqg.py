@@ -21,7 +21,7 @@ from nanosim.design.architectures.common import (  # noqa: E402
     freqresp_z,
     loop_response,
 )
-from nanosim.design.architectures.lqg import delay_augmented, design_lqg, lqg_controller  # noqa: E402
+from nanosim.design.architectures.lqg import LqgRule, delay_augmented, design_lqg, lqg_controller  # noqa: E402
 from nanosim.design.lti import load_state_space_npz  # noqa: E402
 
 MODEL = Path(__file__).parent / "data" / "identified_seed0.npz"
@@ -77,7 +77,7 @@ def test_lqg_damps_a_lightly_damped_mode_through_the_delay(delay):
 
 
 def test_lqg_on_the_identified_model_margin_bandwidth_and_dac_noise(model):
-    d = design_lqg(model, robust=False)
+    d = design_lqg(model, LqgRule.nominal())
     Ke, Ky = d.split()
     f = analysis_grid_hz(DT_S, n=400)
     Gf = freqresp_z(model, f)
@@ -117,7 +117,7 @@ def test_nominal_lqg_vertex_check_records_the_worst_vertex(model):
     is not stable over the whole set (why the exported rule is the robust one), and the recorded worst vertex is
     the loop closed by hand at that vertex."""
     from nanosim.design.uncertainty import ModalPlant
-    d = design_lqg(model, robust=False)
+    d = design_lqg(model, LqgRule.nominal())
     Ke, Ky = d.split()
     v = d.parameters["uncertainty_vertices"]
     assert v["n_checked"] == 2 ** 6 + 32
@@ -218,16 +218,17 @@ def test_uncertainty_set_is_mapped_onto_the_plant_by_its_piezo_gain():
     assert radius[1] > radius[0]            # the plant at half nominal: the set reaches twice its gain
 
 
-def test_a_robust_rule_no_member_meets_says_so(model, monkeypatch):
+def test_a_robust_rule_no_member_meets_says_so(model):
     """The ladder against a mu requirement no member meets (mixed mu < 0.3 over the set): the rule says so (a
     warning, robust_rule_met False) and still returns the checked member with the least mu."""
-    from nanosim.design.architectures import lqg
-    monkeypatch.setattr(lqg, "ROBUST_MU_MAX", 0.3)
+    import dataclasses
+    rule = dataclasses.replace(LqgRule.robust(), design_input_gain=1.0, reference_prefilter=False, mu_max=0.3)
     with pytest.warns(UserWarning, match="mixed mu < 0.3.*robust_rule_met"):
-        d = design_lqg(model, design_input_gain=1.0, reference_prefilter=False)
+        d = design_lqg(model, rule)
     assert d.parameters["robust_rule_met"] is False and d.parameters["design_input_gain"] == 1.0
+    assert "mixed-mu upper bound < 0.3 over it" in d.tuning_rule
     with pytest.raises(ValueError, match="design_input_gain: expected a finite real number > 0.0, got 0"):
-        design_lqg(model, design_input_gain=0)
+        LqgRule(design_input_gain=0)
 
 
 def test_gain_range_rule_no_member_meets_takes_the_largest_margin_at_the_top(model, monkeypatch):
@@ -235,10 +236,13 @@ def test_gain_range_rule_no_member_meets_takes_the_largest_margin_at_the_top(mod
     identified one, where no member keeps the margin: it says so (a warning naming the top, robust_rule_met False)
     and takes the member with the largest margin there, still with the margin at the identified gain."""
     from nanosim.design.architectures import lqg
+    import dataclasses
+
     from nanosim.design.architectures.lqg import ROBUST_MIN_DISK_MARGIN
     monkeypatch.setattr(lqg, "design_input_gains", lambda gains: tuple(3.0 * float(g) for g in gains))
     with pytest.warns(UserWarning, match="at the top of the uncertainty set's gain range.*robust_rule_met"):
-        d = design_lqg(model, design_input_gain=1.0, gain_range_margin=True, reference_prefilter=False)
+        d = design_lqg(model, dataclasses.replace(LqgRule.gain_range(), design_input_gain=1.0,
+                                                  reference_prefilter=False))
     p = d.parameters
     assert p["robust_rule_met"] is False and p["gain_range_margin"] is True and p["mu_peak"] is None
     tops = [r["multiloop_disk_margin_top"] for r in p["tried"] if "multiloop_disk_margin_top" in r]

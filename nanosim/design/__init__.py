@@ -1,19 +1,34 @@
-"""Design layer: model reduction and H-infinity mixed-sensitivity control (paper Sec. 4).
+"""Design layer: the controller bench, its building blocks and the loop analysis (paper Sec. 4).
 
-Modules (no file output here; :func:`nanosim.pipeline.design.run_design` writes
-the artifacts and :mod:`nanosim.plots.design` draws the figures):
+Front door: :func:`design` (``design(name, G, **kwargs) -> BenchDesign``) designs a named member of
+:data:`REGISTRY` -- the bench's controllers, each with its tuning rule as a value (the LQG members:
+:class:`LqgRule` presets) -- from the identified model ``G``; :mod:`~nanosim.design.architectures` lists them.
 
-* :mod:`~nanosim.design.lti` -- LTI helpers, units, sign convention, BLAS threading;
+Below it (no file output here; :func:`nanosim.pipeline.design.run_design` writes the artifacts and
+:mod:`nanosim.plots.design` draws the figures):
+
+Building blocks
+
+* :mod:`~nanosim.design.lti` -- LTI helpers, units, sign convention, BLAS threading, the one state-space
+  response kernel (:func:`~nanosim.design.lti.ss_response`);
 * :mod:`~nanosim.design.reduction` -- balanced truncation, multiplicative uncertainty;
 * :mod:`~nanosim.design.weights` -- the weights Wp, Wt, Wu;
 * :mod:`~nanosim.design.hinf` -- generalized plant, assumptions, synthesis (:class:`Design`);
 * :mod:`~nanosim.design.damping` -- the inner active-damping loop (two degrees of freedom);
-* :mod:`~nanosim.design.loops` -- loop functions S, T, KS and their analysis;
 * :mod:`~nanosim.design.discretize` -- the discrete controller and its check;
-* :mod:`~nanosim.design.controller` -- the real-time discrete controller;
+* :mod:`~nanosim.design.feedforward` -- the inverse Prandtl-Ishlinskii operator;
+* :mod:`~nanosim.design.controller` -- the real-time discrete controller; :mod:`~nanosim.design.sos` -- its
+  second-order sections.
+
+Analysis
+
+* :mod:`~nanosim.design.loops` -- loop functions S, T, KS (the one sensitivity kernel,
+  :func:`~nanosim.design.loops.sensitivities`) and their analysis;
 * :mod:`~nanosim.design.robustness` -- robustness of any controller on the loop as run
-  (facade of :mod:`~nanosim.design.loopresponse`, :mod:`~nanosim.design.margins`,
-  :mod:`~nanosim.design.mu`, :mod:`~nanosim.design.uncertainty`; argument checks in
+  (facade of :mod:`~nanosim.design.loopplant` (the plant as the loop runs it and its delays),
+  :mod:`~nanosim.design.loopresponse` (loop maps), :mod:`~nanosim.design.margins`,
+  :mod:`~nanosim.design.mu` and :mod:`~nanosim.design.mixed_mu`, :mod:`~nanosim.design.uncertainty` and
+  :mod:`~nanosim.design.parametric` (the stage's uncertainty set); argument checks in
   :mod:`~nanosim.design.loopargs`).
 
 Plant ``G``: controller V -> sensor V; controller ``K``: error ``e = r - y``
@@ -67,7 +82,7 @@ from nanosim.design.lti import (
 from nanosim.design.reduction import Reduction, multiplicative_uncertainty, reduce_model
 from nanosim.design.robustness import (
     IDENTIFIED_DELAY_SAMPLES,
-    LOOP_DELAY_SAMPLES,
+    RECORD_ROW_DELAY_SAMPLES,
     ROBUSTNESS_MAPS,
     STAGE_UNCERTAINTY,
     ControllerRobustness,
@@ -101,7 +116,13 @@ from nanosim.design.robustness import (
 )
 from nanosim.design.weights import PAPER_WEIGHTS, WEIGHT_NAMES, Weights, WeightSpec, paper_weights
 
+# the front door (after the blocks it is built on)
+from nanosim.design.architectures import BENCH, DESIGN_RULES, REGISTRY, BenchDesign, BenchMember, design  # noqa: E402
+from nanosim.design.architectures.lqg_rules import LqgRule  # noqa: E402
+
 __all__ = [
+    # the front door
+    "design", "REGISTRY", "BENCH", "DESIGN_RULES", "BenchMember", "BenchDesign", "LqgRule",
     # lti
     "SIGN_CONVENTION", "UNITS", "INV_SQRT2", "BANDWIDTH_DEFINITIONS", "AXIS_RTOL",
     "as_ss", "static_gain", "dc_gain", "freqresp", "sigma_max", "singular_values", "db",
@@ -124,7 +145,7 @@ __all__ = [
     # controller
     "ControllerConfig", "DiscreteController",
     # robustness
-    "LOOP_DELAY_SAMPLES", "IDENTIFIED_DELAY_SAMPLES", "VISIBLE_PEAK", "electronics_ss", "pole_visibility",
+    "RECORD_ROW_DELAY_SAMPLES", "IDENTIFIED_DELAY_SAMPLES", "VISIBLE_PEAK", "electronics_ss", "pole_visibility",
     "ROBUSTNESS_MAPS", "STAGE_UNCERTAINTY", "UncertaintySet", "LoopPlant",
     "ControllerRobustness", "DiskMargin", "DiskMarginReport", "LeastDampedPole", "LoopResponse", "LoopStateSpace",
     "MuBounds", "RobustStabilityResult", "analyze_controller", "controller_systems", "closed_loop_poles",

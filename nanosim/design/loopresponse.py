@@ -61,7 +61,7 @@ from nanosim.design.loopargs import (
     is_lti,
     timebase,
 )
-from nanosim.design.loops import feedback_operator, stack_inputs
+from nanosim.design.loops import feedback_operator, sensitivities, stack_inputs
 from nanosim.design.lti import freqresp, sigma_max
 
 __all__ = ["LOOP_MAPS", "LoopResponse", "LoopStateSpace", "PreparedLoop", "frequency_response", "response_stack",
@@ -190,10 +190,7 @@ def _loop_from_stacks(f, Gf, Kf, Kyf, d, T) -> LoopResponse:
     Gd = Gf * delay_factor(f, d, T)[:, None, None] if d else Gf
     Kfb = Kf if Kyf is None else Kf - Kyf
     Iy, Iu = np.eye(ny), np.eye(nu)
-    Lo = Gd @ Kfb
-    Li = Kfb @ Gd
-    S_o = np.linalg.inv(Iy + Lo)
-    S_i = np.linalg.inv(Iu + Li)
+    Lo, Li, S_o, S_i = sensitivities(Gd, Kfb)
     SG = S_o @ Gd
     return LoopResponse(freq_hz=f.copy(), S_o=S_o, T_o=Iy - S_o, S_i=S_i, T_i=Iu - S_i,
                         KS=S_i @ Kf, KS_fb=Kfb @ S_o, SG=SG, T_ry=SG @ Kf, Lo=Lo, Li=Li, delay_samples=d)

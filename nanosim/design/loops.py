@@ -25,8 +25,8 @@ from nanosim.design.lti import (
     static_gain,
 )
 
-__all__ = ["loop_functions", "loop_freqresp", "LoopAnalysis", "analyse_loop", "min_damping", "MODE_BAND_HZ",
-           "stack_inputs", "feedback_operator"]
+__all__ = ["loop_functions", "loop_freqresp", "sensitivities", "LoopAnalysis", "analyse_loop", "min_damping",
+           "MODE_BAND_HZ", "stack_inputs", "feedback_operator"]
 
 
 def loop_functions(G, K):
@@ -72,10 +72,31 @@ def loop_freqresp(Gf, Kf):
     KS : ndarray, complex, shape (F, nu, ny)
         ``K S`` [controller V / sensor V].
     """
-    ny = Gf.shape[1]
-    I = np.eye(ny)
-    S = np.linalg.inv(I + Gf @ Kf)
-    return S, I - S, Kf @ S
+    S = sensitivities(Gf, Kf)[2]
+    return S, np.eye(Gf.shape[1]) - S, Kf @ S
+
+
+def sensitivities(Gf, Kf):
+    """The loop transfers and sensitivities at plant output and input, frequency by frequency: the one
+    kernel of the frequency-domain loop maps (:func:`loop_freqresp`,
+    :func:`~nanosim.design.loopresponse.loop_transfer_response`, the bench's fast checks).
+
+    Parameters
+    ----------
+    Gf : ndarray, complex, shape (F, ny, nu)
+        Plant response (with any loop delay) [sensor V / controller V].
+    Kf : ndarray, complex, shape (F, nu, ny)
+        Feedback operator ``u = +K e`` [controller V / sensor V].
+
+    Returns
+    -------
+    Lo, Li, S_o, S_i : ndarray, complex
+        ``G K`` and ``K G``; ``(I + G K)^-1`` (F, ny, ny) and ``(I + K G)^-1`` (F, nu, nu).
+    """
+    ny, nu = Gf.shape[1], Gf.shape[2]
+    Lo = Gf @ Kf
+    Li = Kf @ Gf
+    return Lo, Li, np.linalg.inv(np.eye(ny) + Lo), np.linalg.inv(np.eye(nu) + Li)
 
 
 @dataclass(frozen=True, eq=False)

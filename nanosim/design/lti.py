@@ -40,7 +40,8 @@ from nanosim import fileio
 
 __all__ = [
     "SIGN_CONVENTION", "UNITS", "INV_SQRT2", "BANDWIDTH_DEFINITIONS", "AXIS_RTOL",
-    "as_ss", "static_gain", "dc_gain", "freqresp", "sigma_max", "singular_values", "db",
+    "as_ss", "static_gain", "dc_gain", "freqresp", "ss_response", "MODAL_COND_MAX", "sigma_max", "singular_values",
+    "db",
     "max_real_pole", "crossing_hz", "analysis_grid_hz", "refine_peak", "load_state_space_npz",
     "single_threaded_blas",
 ]
@@ -247,6 +248,46 @@ def freqresp(sys_, freq_hz) -> np.ndarray:
         resp = sys_.frequency_response(2 * np.pi * f)
         data = resp.frdata if hasattr(resp, "frdata") else resp.fresp
     return np.moveaxis(np.asarray(data).reshape(sys_.noutputs, sys_.ninputs, f.size), -1, 0)
+
+
+# the eigenvector condition number below which ss_response evaluates in modal form
+MODAL_COND_MAX = 1e8
+
+
+def ss_response(A, B, C, D, points, *, modal: str = "auto") -> np.ndarray:
+    """``C (p I - A)^-1 B + D`` at the complex points ``p``: the one state-space evaluation kernel.
+
+    :func:`freqresp` evaluates a python-control model; this evaluates raw matrices, fast: at
+    ``p = exp(j 2 pi f dt)`` a discrete model, at ``p = j 2 pi f`` a continuous one.
+
+    Parameters
+    ----------
+    A, B, C, D : array_like
+        State-space matrices (``n x n``, ``n x nu``, ``ny x n``, ``ny x nu``).
+    points : array_like, complex, shape (F,)
+        Evaluation points ``z`` or ``s``.
+    modal : {"auto", "always", "never"}
+        ``"always"``: one eigendecomposition of ``A`` (``C V diag(1/(p - lambda)) V^-1 B``);
+        ``"never"``: one linear solve per point; ``"auto"``: modal when the eigenvectors' condition
+        number is below :data:`MODAL_COND_MAX`, else per point.
+
+    Returns
+    -------
+    ndarray, complex, shape (F, ny, nu)
+    """
+    if modal not in ("auto", "always", "never"):
+        raise ValueError(f"modal: expected 'auto', 'always' or 'never', got {modal!r}")
+    A, B, C, D = (np.asarray(m, float) for m in (A, B, C, D))
+    p = np.asarray(points)
+    if A.shape[0] == 0:
+        return np.broadcast_to(D, (p.size,) + D.shape).astype(complex)
+    if modal != "never":
+        lam, V = np.linalg.eig(A)
+        if modal == "always" or np.linalg.cond(V) < MODAL_COND_MAX:
+            CV, VB = C @ V, np.linalg.solve(V, B)
+            return D[None] + np.einsum("ik,fk,kj->fij", CV, 1.0 / (p[:, None] - lam[None]), VB)
+    n = A.shape[0]
+    return np.stack([D + C @ np.linalg.solve(pp * np.eye(n) - A, B) for pp in p])
 
 
 def sigma_max(H: np.ndarray) -> np.ndarray:

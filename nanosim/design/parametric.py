@@ -55,7 +55,7 @@ from nanosim.design.loopresponse import (
     to_state_space,
 )
 from nanosim.design.margins import refine_mu_peak
-from nanosim.design.mu import mixed_mu_upper_bound
+from nanosim.design.mixed_mu import mixed_mu_upper_bound
 from nanosim.design.uncertainty import STAGE_MU_RANGES as _STAGE_RANGES
 from nanosim.design.uncertainty import ModalPlant
 

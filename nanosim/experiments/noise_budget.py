@@ -49,6 +49,7 @@ import numpy as np
 from scipy import signal
 
 from nanosim import constants as C
+from nanosim.design.lti import ss_response
 
 __all__ = ["NoiseSource", "SOURCES", "LoopModel", "loop_model", "analytic_budget", "AnalyticBudget",
            "cumulative_amplitude", "F_MIN_HZ"]
@@ -187,10 +188,7 @@ class LoopModel:
 
 def _ss_response(A, B, Cm, D, z):
     """``C (zI - A)^-1 B + D`` on the points ``z`` (F,), shape (F, ny, nu), by one eigendecomposition."""
-    lam, V = np.linalg.eig(A)
-    Bt = np.linalg.solve(V, B)
-    Ct = Cm @ V
-    return np.einsum("ik,fk,kj->fij", Ct, 1.0 / (z[:, None] - lam[None, :]), Bt) + D[None]
+    return ss_response(A, B, Cm, D, z, modal="always")
 
 
 def loop_model(base) -> LoopModel:

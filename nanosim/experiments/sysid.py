@@ -196,12 +196,11 @@ def identify_on_twin(model=None, settings: IdentifySettings = IdentifySettings()
     IdentifiedStage, nanosim.plant.linearize.LinearTwin
         The identified model and the twin it was identified on.
     """
-    from nanosim.plant.linearize import linearize
     from nanosim.plant.mjcf import load_model
-    from nanosim.plant.stage import Stage
+    from nanosim.plant.runplant import RunPlant
 
     model = load_model() if model is None else model
-    twin = linearize(Stage(config=StageConfig.ideal(), model=model))
+    twin = RunPlant.of_model(model).twin
     return identify_stage(settings, model=model, progress=progress, runner=twin_runner(twin, model)), twin
 
 

@@ -20,13 +20,13 @@ from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.config import CharacterizeConfig
 from nanosim.pipeline.timings import read_timings, record_timings
 from nanosim.plant.floor import floor_model
-from nanosim.plant.linearize import linearize
+from nanosim.plant.runplant import RunPlant
 from nanosim.plant.modes import modal_analysis
 from nanosim.plant.stage import Stage, StageConfig
 from nanosim.plant.twin import TwinStage
 
-__all__ = ["make_factory", "run_characterize", "experiment_task", "write_task_metrics", "METRICS_UNITS",
-           "plant_description", "write_metrics"]
+__all__ = ["make_factory", "make_plant_factory", "run_characterize", "experiment_task", "write_task_metrics",
+           "METRICS_UNITS", "plant_description", "write_metrics"]
 
 # metrics.json's "units": the unit suffixes of its keys
 METRICS_UNITS = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
@@ -47,14 +47,29 @@ def make_factory(twin: bool, mjcf=None, config: StageConfig | None = None):
     base : Stage
         The nominal MuJoCo stage the factory was built from.
     """
+    return make_plant_factory(twin, mjcf, config)[:2]
+
+
+def make_plant_factory(twin: bool, mjcf=None, config: StageConfig | None = None):
+    """:func:`make_factory` and the plant of the run it linearized.
+
+    Returns
+    -------
+    factory, base
+        As :func:`make_factory`.
+    plant : RunPlant or None
+        The ideal stage of ``base.model`` and its linear twin (the twin factory's), for whatever else of the
+        command needs the twin; None for the MuJoCo factory.
+    """
     base = Stage(config=config, mjcf=mjcf)
     if not twin:
         model = base.model
-        return lambda seed: Stage(seed=seed, config=config, model=model), base
-    lin = linearize(Stage(config=StageConfig.ideal(), model=base.model))
+        return (lambda seed: Stage(seed=seed, config=config, model=model)), base, None
+    plant = RunPlant.of_model(base.model)
+    lin = plant.twin
     home = base.table_um.copy()
     fm = floor_model(base.model, base.dt_s)
-    return lambda seed: TwinStage(lin, seed=seed, config=config, home_um=home, floor_model=fm), base
+    return (lambda seed: TwinStage(lin, seed=seed, config=config, home_um=home, floor_model=fm)), base, plant
 
 
 def _run_in_threads(task, names, workers: int):
@@ -183,9 +198,9 @@ def _member_setup(twin: bool, mjcf):
     """The nominal stage, factory, static gain and batch member of a process (built once per process)."""
     from nanosim.experiments.batch_suite import MemberPlant
 
-    factory, base = make_factory(twin, mjcf=mjcf)
+    factory, base, run_plant = make_plant_factory(twin, mjcf=mjcf)
     G0 = modal_analysis(base.model).static_gain_um_per_V
-    plant = MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=base.model)) if twin else None,
+    plant = MemberPlant(twin=run_plant.twin if twin else None,
                         model=base.model, home_um=base.table_um.copy(), static_gain_um_per_V=G0, base_stage=base)
     return factory, base, G0, plant
 

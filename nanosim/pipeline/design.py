@@ -51,6 +51,7 @@ from nanosim.design.robustness import (
     IDENTIFIED_DELAY_SAMPLES,
     STAGE_UNCERTAINTY,
     LoopPlant,
+    analysis_memo,
     analyze_controller,
     controller_systems,
 )
@@ -144,7 +145,7 @@ def model_loop_delay_samples(model_npz) -> int:
     :data:`nanosim.design.robustness.IDENTIFIED_DELAY_SAMPLES` (0): ``nanosim identify``
     pairs each command with the reading the controller had, so its model has the loop's
     delays. (A model identified from record rows, ``u_k`` with the reading after
-    ``step(u_k)``, lacks :data:`~nanosim.design.robustness.LOOP_DELAY_SAMPLES` plus the
+    ``step(u_k)``, lacks :data:`~nanosim.design.robustness.RECORD_ROW_DELAY_SAMPLES` plus the
     computation delay: give it a ``loop_delay_samples`` entry.)
     """
     z = fileio.load_npz(model_npz, required=("A", "B", "C", "D"))
@@ -299,6 +300,7 @@ def _input_ref(path, out_dir) -> dict:
 
 
 @single_threaded_blas
+@analysis_memo()             # the design's mu checks and robustness.json: one analysis of a loop
 def run_design(model_npz, out_dir, config: DesignConfig | None = None, *, twin=None, progress: bool = False,
                dt: float | None = None, figures: bool = True) -> Design:
     """Reduce, design, discretize and export (paper Sec. 4).

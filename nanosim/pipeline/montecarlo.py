@@ -155,9 +155,10 @@ def sample_plants(indices, seed: int, ctrl=None, mjcf=None, with_loop: bool = Tr
     """Models, member plants and plant-level records (modes, gain, loop figures) of samples ``indices``."""
     from nanosim.experiments.batch_suite import MemberPlant
     from nanosim.plant.linearize import linearize
+    from nanosim.plant.runplant import RunPlant
     from nanosim.plant.mjcf import load_model
     from nanosim.plant.modes import modal_analysis
-    from nanosim.plant.stage import Stage, StageConfig
+    from nanosim.plant.stage import Stage
     from nanosim.plant.tolerances import default_tolerances, sample_model
 
     tm = default_tolerances(load_model(mjcf))
@@ -169,7 +170,7 @@ def sample_plants(indices, seed: int, ctrl=None, mjcf=None, with_loop: bool = Tr
         f = [m.freq_hz for m in modes.below(1000.0)]
         z = [m.damping_ratio for m in modes.below(1000.0)]
         G0 = modes.static_gain_um_per_V
-        twin = linearize(Stage(config=StageConfig.ideal(), model=model))
+        twin = RunPlant.of_model(model).twin
         rec = {"index": int(i), "tolerances": values, "modes_hz": f, "damping_ratio": z,
                "static_gain_um_per_V": G0.tolist(),
                "xy_split_percent": 100.0 * (f[1] - f[0]) / (0.5 * (f[1] + f[0])) if len(f) > 1 else math.nan}

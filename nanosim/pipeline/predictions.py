@@ -56,8 +56,9 @@ def _state_space(npz):
 
 
 def _freq_resp(A, B, C, D, f_hz):
-    n = A.shape[0]
-    return np.array([C @ np.linalg.solve(2j * np.pi * f * np.eye(n) - A, B) + D for f in f_hz])
+    """Continuous response at ``s = j 2 pi f``, one solve per point."""
+    from nanosim.design.lti import ss_response
+    return ss_response(A, B, C, D, 2j * np.pi * np.asarray(f_hz, float), modal="never")
 
 
 def creep_doublets(model_npz, max_rad_s: float = 300.0) -> list[dict]:

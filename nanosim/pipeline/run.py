@@ -40,12 +40,11 @@ def step_modes(out: Path, mjcf=None) -> None:
 
 def write_twin_npz(out: Path, mjcf=None) -> Path:
     """``twin.npz`` (and ``twin.mat``): MuJoCo's linearization of the ideal stage (controller V -> sensor V)."""
-    from nanosim.plant.linearize import linearize
-    from nanosim.plant.stage import Stage, StageConfig
+    from nanosim.plant.runplant import RunPlant
 
     from nanosim.pipeline.identify import save_model_mat
 
-    tw = linearize(Stage(config=StageConfig.ideal(), mjcf=mjcf))
+    tw = RunPlant.load(mjcf).twin
     s = tw.sys_V
     save_model_mat((out / A.TWIN_NPZ).with_suffix(".mat"), tw.sysd_V, s, ("A", "B", "C"), ("X", "Y", "Z"),
                    "controller V -> sensor V (5 um/V); ideal MuJoCo stage, linear piezo")
@@ -60,12 +59,11 @@ def step_identify(out: Path, config: IdentifyConfig, mjcf=None, progress=None, o
     ``on_model(path)`` is called once ``model.npz`` is written (see :func:`run_identify`).
     """
     from nanosim.pipeline.identify import run_identify
-    from nanosim.plant.linearize import linearize
     from nanosim.plant.mjcf import load_model
-    from nanosim.plant.stage import Stage, StageConfig
+    from nanosim.plant.runplant import RunPlant
 
     model = load_model(mjcf)
-    twin = linearize(Stage(config=StageConfig.ideal(), model=model))
+    twin = RunPlant.of_model(model).twin
     run_identify(out, config, model=model, twin=twin, progress=progress, on_model=on_model)
 
 
@@ -143,17 +141,15 @@ def characterize_batch(controller_npz, out_dir, seed: int, mjcf=None, *, twin: b
     from nanosim.experiments.batch_suite import MemberPlant, run_experiments_batch
     from nanosim.experiments.registry import ExperimentContext
     from nanosim.fileio import save_figure
-    from nanosim.pipeline.characterize import make_factory, write_metrics
-    from nanosim.plant.linearize import linearize
+    from nanosim.pipeline.characterize import make_plant_factory, write_metrics
     from nanosim.plant.modes import modal_analysis
-    from nanosim.plant.stage import Stage, StageConfig
 
     out = Path(out_dir)
     names = list(experiments.load_builtin())
     ctrl = DiscreteController(read_controller_file(controller_npz, dt=C.CONTROL_PERIOD_S))
-    factory, base = make_factory(twin, mjcf=mjcf)
+    factory, base, run_plant = make_plant_factory(twin, mjcf=mjcf)
     G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
-    plant = MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=base.model)) if twin else None,
+    plant = MemberPlant(twin=run_plant.twin if twin else None,
                         model=base.model, home_um=base.table_um.copy(), static_gain_um_per_V=G0, base_stage=base)
 
     def one(name):

@@ -102,12 +102,12 @@ def _plant(twin: bool, mjcf):
     from nanosim.pipeline.characterize import plant_description
     from nanosim.plant.batch import BatchMujocoStage, BatchTwinStage
     from nanosim.plant.floor import floor_model
-    from nanosim.plant.linearize import linearize
-    from nanosim.plant.stage import Stage, StageConfig
+    from nanosim.plant.runplant import RunPlant
+    from nanosim.plant.stage import Stage
 
     base = Stage(mjcf=mjcf)
     if twin:
-        lin = linearize(Stage(config=StageConfig.ideal(), model=base.model))
+        lin = RunPlant.of_model(base.model).twin
         fm = floor_model(base.model, base.dt_s)
         home = base.table_um.copy()
         return (lambda seeds: BatchTwinStage(lin, seeds, home_um=home, floor_models=fm)), plant_description(True)

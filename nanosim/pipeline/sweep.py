@@ -213,9 +213,9 @@ def run_points(task: dict, points: list, sink) -> list[dict]:
     from nanosim.design.lti import single_threaded_blas
     from nanosim.experiments.batch_suite import MemberPlant, run_experiments_batch
     from nanosim.pipeline.mc_stats import flatten_metrics
-    from nanosim.plant.linearize import linearize
+    from nanosim.plant.runplant import RunPlant
     from nanosim.plant.modes import modal_analysis
-    from nanosim.plant.stage import Stage, StageConfig
+    from nanosim.plant.stage import Stage
 
     experiments.load_builtin()
     design_cfg = task["design"]
@@ -235,7 +235,7 @@ def run_points(task: dict, points: list, sink) -> list[dict]:
             rec = {"index": idx, "values": values, "modes_hz": [m.freq_hz for m in modes.below(1000.0)],
                    "static_gain_um_per_V": G0.tolist(), "travel_xyz_um": travel.tolist(),
                    "travel_um": float(travel.min()), **des, "design_seconds": round(time.perf_counter() - t0, 2)}
-            plants.append(MemberPlant(twin=linearize(Stage(config=StageConfig.ideal(), model=model)), model=model,
+            plants.append(MemberPlant(twin=RunPlant.of_model(model).twin, model=model,
                                       home_um=Stage(model=model).table_um.copy(), static_gain_um_per_V=G0))
             ctrls.append(ctrl)
             recs.append(rec)

@@ -1,7 +1,17 @@
-"""The controller bench: ten designs, each a pure function of the identified model.
+"""The controller bench: every design a pure function of the identified model, behind one entry.
 
-``design_X(G, *, dt=250e-6, delay_samples=0, ...) -> BenchDesign`` (a discrete
-``Akd, Bkd, Ckd, Dkd, dt, n_error`` controller with its tuning rule), for
+Front door: ``design(name, G, **kwargs) -> BenchDesign`` designs the named member of :data:`REGISTRY` from the
+identified plant ``G`` (a discrete ``Akd, Bkd, Ckd, Dkd, dt, n_error`` controller with its tuning rule, the
+layout of ``controller.npz``). A member (:class:`BenchMember`) names its design function and, where the
+function takes one, its tuning rule as a value (the LQG members: an
+:class:`~nanosim.design.architectures.lqg_rules.LqgRule` preset)::
+
+    from nanosim.design.architectures import design
+    from nanosim.design.architectures.lqg_rules import LqgRule
+    d = design("lqg-nominal", G)                       # = design_lqg(G, LqgRule.nominal()), named lqg-nominal
+    d = design("lqg", G, rule=dataclasses.replace(LqgRule.robust(), control_weight=0.01))
+
+The scored bench (:data:`BENCH`, in scorecard order):
 
 * ``hinf`` (:mod:`.hinf_fourblock`) -- four-block H-infinity (S, SG, KS, T): the paper's weights plus an
   input-disturbance channel, so the optimum damps the first pair (the exported default);
@@ -11,120 +21,122 @@
 * ``damping-tracking`` (:mod:`.damping_tracking`) -- positive position feedback plus integral tracking;
 * ``robust`` (:mod:`.robust`) -- Glover-McFarlane H-infinity loop shaping against the stage's uncertainty set;
 * ``feedforward`` (:mod:`.feedforward`) -- model-inversion feedforward on top of a feedback design;
-* ``lqg`` (:mod:`.lqg`) -- H2-optimal output feedback with integral action from the stage's noise levels,
-  robust over the uncertainty set; ``lqg-nominal`` -- the same designed on the identified modes (not robust
-  to one extra sample of delay with the modes 3 % higher); ``lqg-gain-range`` -- the robust lqg with its disk
-  margin required at both ends of the set's piezo-gain range (the identified slope after a reversal and the
-  nominal slope of a monotone move), designed at the range's top;
+* ``lqg`` (:mod:`.lqg`, :meth:`~.lqg_rules.LqgRule.robust`) -- H2-optimal output feedback with integral
+  action from the stage's noise levels, robust over the uncertainty set; ``lqg-nominal``
+  (:meth:`~.lqg_rules.LqgRule.nominal`) -- the same designed on the identified modes (not robust to one extra
+  sample of delay with the modes 3 % higher); ``lqg-gain-range`` (:meth:`~.lqg_rules.LqgRule.gain_range`) --
+  the robust lqg with its disk margin required at both ends of the set's piezo-gain range (the identified slope
+  after a reversal and the nominal slope of a monotone move), designed at the range's top;
 * ``irc`` (:mod:`.irc`) -- integral resonant control per decoupled axis plus integral tracking.
 
-Outside the scored bench (:data:`DESIGN_RULES`, which :func:`design` accepts too): ``lqg-bandwidth`` -- the robust
-lqg at the smallest control weight (from 1/300 of its own up) at which its pick meets every check, without the
-reference prefilter: the fastest loops its robustness checks accept (``nanosim sweep --architecture lqg-bandwidth``).
+Outside the scored bench (in :data:`DESIGN_RULES`, which :func:`design` accepts too): ``lqg-bandwidth``
+(:meth:`~.lqg_rules.LqgRule.bandwidth`) -- the robust lqg at the smallest control weight (from 1/300 of its
+own up) at which its pick meets every check, without the reference prefilter: the fastest loops its
+robustness checks accept (``nanosim sweep --architecture lqg-bandwidth``).
 
+Below the bench: the shared pieces (:mod:`.common`: the result type, filters, decoupling, the fast loop
+checks), the building blocks of :mod:`nanosim.design` (H-infinity synthesis, reduction, weights, damping,
+discretization) and its analysis (loop maps, margins, mu, uncertainty, :mod:`nanosim.design.robustness`).
 :mod:`.protocol` turns a name, a file or ``module:function`` into a controller.
 """
 from __future__ import annotations
 
-from typing import Callable
+import dataclasses
+import importlib
+from dataclasses import dataclass
+from typing import Any, Callable
 
-from nanosim.design.architectures.common import DT_S, LOOP_DELAY_SAMPLES, BenchDesign
+from nanosim.design.architectures.common import DT_S, BenchDesign
+from nanosim.design.architectures.lqg_rules import LqgRule
 
-__all__ = ["BENCH", "DESIGN_RULES", "BenchDesign", "design", "design_bench", "DT_S", "LOOP_DELAY_SAMPLES"]
-
-
-def _paper(G, **kw):
-    from nanosim.design.architectures.paper import design_paper
-    return design_paper(G, **kw)
-
-
-def _hinf(G, **kw):
-    from nanosim.design.architectures.hinf_fourblock import design_hinf_fourblock
-    return design_hinf_fourblock(G, **kw)
+__all__ = ["REGISTRY", "BENCH", "DESIGN_RULES", "BenchMember", "BenchDesign", "LqgRule", "design", "design_bench",
+           "DT_S"]
 
 
-def _hinf_damped(G, **kw):
-    from nanosim.design.architectures.hinf_damped import design_hinf_damped
-    return design_hinf_damped(G, **kw)
+@dataclass(frozen=True)
+class BenchMember:
+    """One named design of the bench: the function that designs it and the rule it is given.
+
+    Attributes
+    ----------
+    name : str
+        Bench name (``lqg-nominal``); the design's ``name``.
+    module : str
+        Module of the design function (imported on first use).
+    function : str
+        Its name: ``function(G, **kwargs) -> BenchDesign``.
+    rule : object or None
+        The tuning rule passed as ``rule=`` (None: the function's own, fixed rule).
+    scored : bool
+        In the scored bench (:data:`BENCH`) or outside it (only :data:`DESIGN_RULES`).
+    """
+
+    name: str
+    module: str
+    function: str
+    rule: Any = None
+    scored: bool = True
+
+    def design(self, G, **kwargs) -> BenchDesign:
+        """The design from ``G``: ``function(G, rule=self.rule, **kwargs)``, named :attr:`name`.
+
+        ``kwargs`` go to the design function; a ``rule`` among them replaces the member's.
+        """
+        fn = getattr(importlib.import_module(self.module), self.function)
+        if self.rule is not None:
+            kwargs.setdefault("rule", self.rule)
+        d = fn(G, **kwargs)
+        return d if d.name == self.name else dataclasses.replace(d, name=self.name)
 
 
-def _pi_notch(G, **kw):
-    from nanosim.design.architectures.pi_notch import design_pi_notch
-    return design_pi_notch(G, **kw)
+_A = "nanosim.design.architectures."
+# every named design, the scored bench (in scorecard order) first
+REGISTRY: dict[str, BenchMember] = {m.name: m for m in (
+    BenchMember("hinf", _A + "hinf_fourblock", "design_hinf_fourblock"),
+    BenchMember("paper", _A + "paper", "design_paper"),
+    BenchMember("hinf-damped", _A + "hinf_damped", "design_hinf_damped"),
+    BenchMember("pi-notch", _A + "pi_notch", "design_pi_notch"),
+    BenchMember("damping-tracking", _A + "damping_tracking", "design_damping_tracking"),
+    BenchMember("robust", _A + "robust", "design_robust"),
+    BenchMember("feedforward", _A + "feedforward", "design_feedforward"),
+    BenchMember("lqg", _A + "lqg", "design_lqg", LqgRule.robust()),
+    BenchMember("lqg-nominal", _A + "lqg", "design_lqg", LqgRule.nominal()),
+    BenchMember("lqg-gain-range", _A + "lqg", "design_lqg", LqgRule.gain_range()),
+    BenchMember("irc", _A + "irc", "design_irc"),
+    BenchMember("lqg-bandwidth", _A + "lqg", "design_lqg", LqgRule.bandwidth(), scored=False),
+)}
 
-
-def _damping_tracking(G, **kw):
-    from nanosim.design.architectures.damping_tracking import design_damping_tracking
-    return design_damping_tracking(G, **kw)
-
-
-def _robust(G, **kw):
-    from nanosim.design.architectures.robust import design_robust
-    return design_robust(G, **kw)
-
-
-def _lqg(G, **kw):
-    from nanosim.design.architectures.lqg import design_lqg
-    return design_lqg(G, **kw)
-
-
-def _lqg_nominal(G, **kw):
-    import dataclasses
-
-    from nanosim.design.architectures.lqg import design_lqg
-    return dataclasses.replace(design_lqg(G, robust=False, **kw), name="lqg-nominal")
-
-
-def _lqg_gain_range(G, **kw):
-    import dataclasses
-
-    from nanosim.design.architectures.lqg import design_lqg
-    return dataclasses.replace(design_lqg(G, gain_range_margin=True, **kw), name="lqg-gain-range")
-
-
-def _irc(G, **kw):
-    from nanosim.design.architectures.irc import design_irc
-    return design_irc(G, **kw)
-
-
-def _feedforward(G, **kw):
-    from nanosim.design.architectures.feedforward import design_feedforward
-    return design_feedforward(G, **kw)
-
-
-# name -> design function, in scorecard order
-BENCH: dict[str, Callable[..., BenchDesign]] = {
-    "hinf": _hinf,
-    "paper": _paper,
-    "hinf-damped": _hinf_damped,
-    "pi-notch": _pi_notch,
-    "damping-tracking": _damping_tracking,
-    "robust": _robust,
-    "feedforward": _feedforward,
-    "lqg": _lqg,
-    "lqg-nominal": _lqg_nominal,
-    "lqg-gain-range": _lqg_gain_range,
-    "irc": _irc,
-}
-
-
-def _lqg_bandwidth(G, **kw):
-    import dataclasses
-
-    from nanosim.design.architectures.lqg import design_lqg
-    kw.setdefault("reference_prefilter", False)      # the fastest reference path too (the notch costs ~12 Hz)
-    return dataclasses.replace(design_lqg(G, seek_bandwidth=True, **kw), name="lqg-bandwidth")
-
-
+# name -> design function (G, **kwargs) -> BenchDesign: the scored bench, in scorecard order
+BENCH: dict[str, Callable[..., BenchDesign]] = {n: m.design for n, m in REGISTRY.items() if m.scored}
 # every named design: the scored bench, then the rules outside it
-DESIGN_RULES: dict[str, Callable[..., BenchDesign]] = {**BENCH, "lqg-bandwidth": _lqg_bandwidth}
+DESIGN_RULES: dict[str, Callable[..., BenchDesign]] = {n: m.design for n, m in REGISTRY.items()}
 
 
 def design(name: str, G, **kwargs) -> BenchDesign:
-    """Design the named architecture (:data:`DESIGN_RULES`: the bench's and ``lqg-bandwidth``) from ``G``."""
-    if name not in DESIGN_RULES:
-        raise ValueError(f"name: expected one of {list(DESIGN_RULES)}, got {name!r}")
-    return DESIGN_RULES[name](G, **kwargs)
+    """Design the named member of :data:`REGISTRY` (:data:`DESIGN_RULES`: the bench's and ``lqg-bandwidth``)
+    from the identified plant ``G``.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`REGISTRY`.
+    G : control.StateSpace
+        Identified plant (controller V -> sensor V), discrete at the control period or continuous.
+    **kwargs
+        Passed to the design function (``dt``, ``delay_samples``, a ``rule`` value, ...).
+
+    Returns
+    -------
+    BenchDesign
+
+    Raises
+    ------
+    ValueError
+        ``name`` is not a registered design.
+    """
+    if name not in REGISTRY:
+        raise ValueError(f"name: expected one of {list(REGISTRY)}, got {name!r}")
+    return REGISTRY[name].design(G, **kwargs)
 
 
 def design_bench(G, names=None, **kwargs) -> dict[str, BenchDesign]:

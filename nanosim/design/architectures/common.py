@@ -10,12 +10,13 @@ The loop as run
 ---------------
 ``nanosim identify`` pairs each command with the reading the controller had when it
 computed it, so its discrete model already is the loop as run: the designs and every
-check here close the loop around the identified model as it is
-(``LOOP_DELAY_SAMPLES`` = :data:`~nanosim.design.robustness.IDENTIFIED_DELAY_SAMPLES` = 0,
-pinned by ``tests/test_bench_controllers.py``). ``delay_samples = d`` adds ``z^-d`` for a
-model identified from record rows (the reading of the period in which the command was
-applied), which lacks the loop's sample of delay. A model of ``nanosim identify`` must not get that
-sample again: it would design and check for one sample more delay than the stage has.
+check here close the loop around the identified model as it is (every design's default
+``delay_samples`` is :data:`~nanosim.design.robustness.IDENTIFIED_DELAY_SAMPLES` = 0, pinned by
+``tests/test_bench_controllers.py``). ``delay_samples = d`` adds ``z^-d`` for a model identified
+from record rows (the reading of the period in which the command was applied), which lacks the
+loop's sample of delay (:data:`~nanosim.design.robustness.RECORD_ROW_DELAY_SAMPLES` = 1). A model of
+``nanosim identify`` must not get that sample again: it would design and check for one sample more
+delay than the stage has.
 
 Filters are continuous prototypes mapped to 4 kHz with Tustin, prewarped at their own
 characteristic frequency, so a notch sits exactly on its mode.
@@ -32,7 +33,8 @@ from nanosim import constants
 from nanosim.design.controller import ControllerConfig, DiscreteController
 from nanosim.design.robustness import IDENTIFIED_DELAY_SAMPLES, loop_transfer_response, mu_upper_bound
 
-__all__ = ["DT_S", "LOOP_DELAY_SAMPLES", "BenchDesign", "stack_2dof", "split_2dof", "as_discrete", "as_continuous",
+__all__ = ["DT_S", "IDENTIFIED_DELAY_SAMPLES", "BenchDesign", "stack_2dof", "split_2dof", "as_discrete",
+           "as_continuous",
            "dc_gain_z", "lightly_damped_modes", "distinct_modes_hz", "mode_groups", "tf_to_ss", "notch", "lowpass2",
            "pi_leaky", "series_siso", "diag_ss", "static_ss", "freqresp_z", "analysis_grid_hz", "loop_response",
            "disk_margin_summary", "loop_at_a_time_alpha", "sensitivity_bandwidth_hz",
@@ -40,8 +42,6 @@ __all__ = ["DT_S", "LOOP_DELAY_SAMPLES", "BenchDesign", "stack_2dof", "split_2do
            "closed_loop_spectral_radius", "uncertainty_vertex_check"]
 
 DT_S = constants.CONTROL_PERIOD_S
-# the identified model is the loop as run (module docstring)
-LOOP_DELAY_SAMPLES = IDENTIFIED_DELAY_SAMPLES
 # integrators leak at this corner so that (I - Akd) is invertible (DiscreteController.reset_at needs it)
 LEAK_HZ = 0.01
 
@@ -268,18 +268,12 @@ def static_ss(M, dt: float = DT_S):
 # fast loop checks (frequency responses, disk margins through nanosim's loop analysis)
 # =====================================================================================
 def freqresp_z(sys_, freq_hz) -> np.ndarray:
-    """Frequency response of a discrete system, shape ``(F, ny, nu)``."""
-    A, B, C, D = (np.asarray(m, float) for m in (sys_.A, sys_.B, sys_.C, sys_.D))
-    f = np.asarray(freq_hz, float)
-    z = np.exp(2j * np.pi * f * float(sys_.dt))
-    if A.shape[0] == 0:
-        return np.broadcast_to(D, (f.size,) + D.shape).astype(complex)
-    lam, V = np.linalg.eig(A)
-    if np.linalg.cond(V) < 1e8:
-        CV, VB = C @ V, np.linalg.solve(V, B)
-        return D[None] + np.einsum("ik,fk,kj->fij", CV, 1.0 / (z[:, None] - lam[None]), VB)
-    n = A.shape[0]
-    return np.stack([D + C @ np.linalg.solve(zz * np.eye(n) - A, B) for zz in z])
+    """Frequency response of a discrete system, shape ``(F, ny, nu)`` (:func:`~nanosim.design.lti.ss_response`
+    at ``z = exp(j 2 pi f dt)``).
+    """
+    from nanosim.design.lti import ss_response
+    z = np.exp(2j * np.pi * np.asarray(freq_hz, float) * float(sys_.dt))
+    return ss_response(sys_.A, sys_.B, sys_.C, sys_.D, z)
 
 
 def analysis_grid_hz(dt: float = DT_S, n: int = 700, modes=()) -> np.ndarray:
@@ -290,7 +284,7 @@ def analysis_grid_hz(dt: float = DT_S, n: int = 700, modes=()) -> np.ndarray:
     return np.unique(np.concatenate([f, *extra])) if extra else f
 
 
-def loop_response(Gf, freq_hz, Ke, Ky=None, delay_samples: int = LOOP_DELAY_SAMPLES, dt: float = DT_S):
+def loop_response(Gf, freq_hz, Ke, Ky=None, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, dt: float = DT_S):
     """:class:`~nanosim.design.robustness.LoopResponse` of ``u = Ke e + Ky y`` around the plant
     response ``Gf`` (F, ny, nu) on ``freq_hz``, with ``delay_samples`` of input delay.
     """
@@ -299,16 +293,16 @@ def loop_response(Gf, freq_hz, Ke, Ky=None, delay_samples: int = LOOP_DELAY_SAMP
     return loop_transfer_response(Gf, Kf, freq_hz, Ky=Kyf, delay_samples=delay_samples, dt=dt)
 
 
-def loop_at_a_time_alpha(Gf, Kf, delay_samples: int = LOOP_DELAY_SAMPLES, dt: float = DT_S, freq_hz=None) -> float:
+def loop_at_a_time_alpha(Gf, Kf, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, dt: float = DT_S,
+                         freq_hz=None) -> float:
     """Smallest loop-at-a-time symmetric disk margin at plant input and output, from the
     responses ``Gf`` (F, ny, nu) and ``Kf`` (F, nu, ny) of plant and feedback operator
     (fast: no validation, for tuning loops; ``freq_hz`` needed with a delay).
     """
     if delay_samples:
         Gf = Gf * np.exp(-2j * np.pi * np.asarray(freq_hz) * delay_samples * dt)[:, None, None]
-    ny, nu = Gf.shape[1], Gf.shape[2]
-    So = np.linalg.inv(np.eye(ny) + Gf @ Kf)
-    Si = np.linalg.inv(np.eye(nu) + Kf @ Gf)
+    from nanosim.design.loops import sensitivities
+    So, Si = sensitivities(Gf, Kf)[2:]
     peak = max(np.abs(np.diagonal(So, axis1=1, axis2=2) - 0.5).max(),
                np.abs(np.diagonal(Si, axis1=1, axis2=2) - 0.5).max())
     return float(1.0 / peak)
@@ -366,7 +360,7 @@ def _first_rise_hz(s: np.ndarray, f: np.ndarray, level: float) -> float:
     return float(np.exp(x0 + t * (x1 - x0)))
 
 
-def closed_loop_spectral_radius(Gd, Ke, Ky=None, delay_samples: int = LOOP_DELAY_SAMPLES) -> float:
+def closed_loop_spectral_radius(Gd, Ke, Ky=None, delay_samples: int = IDENTIFIED_DELAY_SAMPLES) -> float:
     """Spectral radius of the discrete loop ``u = Ke (r - y) + Ky y`` around ``z^-d Gd``."""
     A, B, C, D = (np.asarray(m, float) for m in (Gd.A, Gd.B, Gd.C, Gd.D))
     ny, nu = C.shape[0], B.shape[1]

@@ -30,7 +30,7 @@ import numpy as np
 
 from nanosim.design.architectures.common import (
     DT_S,
-    LOOP_DELAY_SAMPLES,
+    IDENTIFIED_DELAY_SAMPLES,
     BenchDesign,
     analysis_grid_hz,
     as_discrete,
@@ -84,7 +84,7 @@ def _tracking(G0_inv, ki_hz: float, lowpass_hz: float, dt: float):
     return ct.ss(ct.series(diag_ss([C] * n), static_ss(G0_inv, dt)))
 
 
-def design_damping_tracking(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES,
+def design_damping_tracking(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAMPLES,
                             min_disk_margin: float = 0.5) -> BenchDesign:
     """PPF damping plus integral tracking, tuned by the rule of the module docstring.
 

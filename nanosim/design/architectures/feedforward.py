@@ -42,7 +42,7 @@ import numpy as np
 
 from nanosim.design.architectures.common import (
     DT_S,
-    LOOP_DELAY_SAMPLES,
+    IDENTIFIED_DELAY_SAMPLES,
     BenchDesign,
     as_discrete,
     distinct_modes_hz,
@@ -96,7 +96,7 @@ def default_basis(order: int = POLY_ORDER, creep_hz=CREEP_HZ) -> tuple:
     return (("hp", HIGHPASS_HZ),) + tuple(("hp", f) for f in creep_hz) + tuple(("d", m) for m in range(1, order + 1))
 
 
-def loop_plant_response(Gd, freq_hz, delay_samples: int = LOOP_DELAY_SAMPLES, Ky=None) -> np.ndarray:
+def loop_plant_response(Gd, freq_hz, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, Ky=None) -> np.ndarray:
     """``(I - G_loop Ky)^-1 G_loop`` on ``freq_hz`` (F, ny, nu): the plant a command added to ``u`` sees
     (``G_loop`` = identified model with the loop's delay; ``Ky`` the base design's measurement path).
     """
@@ -107,7 +107,7 @@ def loop_plant_response(Gd, freq_hz, delay_samples: int = LOOP_DELAY_SAMPLES, Ky
     return np.linalg.solve(np.eye(Gf.shape[1]) - Gf @ freqresp_z(Ky, f), Gf)
 
 
-def fit_inverse(Gd, freq_hz, basis, *, delay_samples: int = LOOP_DELAY_SAMPLES, notch_hz=(),
+def fit_inverse(Gd, freq_hz, basis, *, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, notch_hz=(),
                 notch_zeta: float = NOTCH_ZETA, Ky=None) -> np.ndarray:
     """Least-squares ``P_m`` with ``Gp N sum_m P_m b_m(j w) ~ I`` on ``freq_hz`` (relative fit), ``Gp`` the
     plant the command sees (:func:`loop_plant_response`).
@@ -231,7 +231,7 @@ def feedforward_controller(base: BenchDesign, P: np.ndarray, basis, ref_hz: floa
     return ct.ss(A_tot, np.hstack([B_e, B_y]), C_tot, np.hstack([D_e, D_y]), dt)
 
 
-def design_feedforward(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES, base=DEFAULT_BASE,
+def design_feedforward(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, base=DEFAULT_BASE,
                        ref_ratio: float = 1.5, fit_ratio: float | None = None, order: int = POLY_ORDER,
                        notches: bool | None = None) -> BenchDesign:
     """Model-inversion feedforward on top of the feedback design ``base``.

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from nanosim.constants import DEFAULT_DAMPING_LOWPASS_HZ, DEFAULT_DAMPING_ZETA, DEFAULT_REDUCED_ORDER
-from nanosim.design.architectures.common import DT_S, LOOP_DELAY_SAMPLES, BenchDesign, as_continuous
+from nanosim.design.architectures.common import DT_S, IDENTIFIED_DELAY_SAMPLES, BenchDesign, as_continuous
 from nanosim.design.damping import damped_plant, damping_loop
 from nanosim.design.discretize import discretize_controller
 from nanosim.design.hinf import design_hinf
@@ -75,7 +75,7 @@ def _stable_damping_loop(G_design, G_loop, zeta: float, lowpass_hz: float):
 
 
 @single_threaded_blas
-def design_hinf_damped(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES,
+def design_hinf_damped(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAMPLES,
                        reduced_order: int = REDUCED_ORDER, damping_zeta: float = DAMPING_ZETA,
                        damping_lowpass_hz: float = DAMPING_LOWPASS_HZ, weights=None,
                        delay_aware: bool = True) -> BenchDesign:

@@ -43,8 +43,8 @@ the reading ``y_k`` and first shows in ``y_(k+1) = Stage.step(u_k)``. ``nanosim 
 pairs each command with the reading the controller had, so that sample is inside the
 identified discrete model (its strictly proper part; the Tustin all-pass zero at ``s = 2/dt`` of
 the continuous model), and the delay beyond the model is
-:data:`nanosim.design.architectures.common.LOOP_DELAY_SAMPLES` (0; the one sample of
-:data:`nanosim.design.robustness.LOOP_DELAY_SAMPLES` is the same sample counted from a
+:data:`nanosim.design.robustness.IDENTIFIED_DELAY_SAMPLES` (0; the one sample of
+:data:`nanosim.design.robustness.RECORD_ROW_DELAY_SAMPLES` is the same sample counted from a
 record-row model). ``delay_samples = d > 0`` adds the Tustin image of ``z^-d`` to the
 generalized plant.
 
@@ -86,7 +86,7 @@ import numpy as np
 from nanosim import constants
 from nanosim.design.architectures.common import (
     DT_S,
-    LOOP_DELAY_SAMPLES,
+    IDENTIFIED_DELAY_SAMPLES as LOOP_DELAY_SAMPLES,     # the delay beyond the identified model (0)
     BenchDesign,
     as_continuous,
     as_discrete,

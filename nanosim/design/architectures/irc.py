@@ -51,7 +51,7 @@ import numpy as np
 from nanosim.design.architectures.common import (
     DT_S,
     LEAK_HZ,
-    LOOP_DELAY_SAMPLES,
+    IDENTIFIED_DELAY_SAMPLES,
     BenchDesign,
     analysis_grid_hz,
     as_continuous,
@@ -192,7 +192,7 @@ def _lowest_zero_below(Pc, i, df, w1):
     return float(cand.max())
 
 
-def design_irc(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES, rule: IrcRule = IRC_RULE
+def design_irc(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, rule: IrcRule = IRC_RULE
                ) -> BenchDesign:
     """IRC damping plus integral tracking, tuned by :class:`IrcRule` (module docstring).
 

@@ -11,7 +11,7 @@ images). The design model has no delay: the paper's did not.
 """
 from __future__ import annotations
 
-from nanosim.design.architectures.common import DT_S, LOOP_DELAY_SAMPLES, BenchDesign, as_continuous
+from nanosim.design.architectures.common import DT_S, IDENTIFIED_DELAY_SAMPLES, BenchDesign, as_continuous
 from nanosim.design.discretize import discretize_controller
 from nanosim.design.hinf import design_hinf
 from nanosim.design.lti import single_threaded_blas
@@ -27,7 +27,7 @@ TUNING_RULE = ("the paper's: 10-state balanced truncation, optimal S/KS/T H-infi
 
 
 @single_threaded_blas
-def design_paper(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES,
+def design_paper(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAMPLES,
                  reduced_order: int = PAPER_REDUCED_ORDER, weights=None) -> BenchDesign:
     """The paper's single-loop H-infinity design.
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from nanosim.design.architectures.common import (
     DT_S,
-    LOOP_DELAY_SAMPLES,
+    IDENTIFIED_DELAY_SAMPLES,
     BenchDesign,
     analysis_grid_hz,
     as_discrete,
@@ -60,7 +60,7 @@ def pi_notch_controller(G0_inv, gain: float, pi_zero_hz: float, notch_hz, notch_
     return ct.ss(ct.series(diag_ss([C] * n), static_ss(G0_inv, dt)))
 
 
-def design_pi_notch(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES, min_disk_margin: float = 0.5,
+def design_pi_notch(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, min_disk_margin: float = 0.5,
                     notch_zetas=NOTCH_ZETAS, pi_zeros_hz=PI_ZERO_HZ) -> BenchDesign:
     """PI with notches, tuned by the rule of the module docstring.
 

@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from nanosim.design.architectures.common import DT_S, LOOP_DELAY_SAMPLES, mode_groups
+from nanosim.design.architectures.common import DT_S, IDENTIFIED_DELAY_SAMPLES, mode_groups
 
 __all__ = ["RingPair", "ringing_pairs", "reference_notch", "matched_notch", "with_reference_prefilter",
            "design_reference_prefilter", "RING_ZETA_MAX", "RING_MIN_STEP_FRACTION", "RING_MIN_HZ", "NOTCH_POLE_ZETA",
@@ -57,7 +57,7 @@ class RingPair:
     axis: int
 
 
-def ringing_pairs(G, Ke, Ky=None, *, delay_samples: int = LOOP_DELAY_SAMPLES, dt: float = DT_S,
+def ringing_pairs(G, Ke, Ky=None, *, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, dt: float = DT_S,
                   zeta_max: float = RING_ZETA_MAX, min_step_fraction: float = RING_MIN_STEP_FRACTION,
                   f_min_hz: float = RING_MIN_HZ) -> list[RingPair]:
     """Lightly damped pole pairs of the diagonal of ``T_ry`` that carry a visible share of a step.
@@ -198,7 +198,7 @@ def with_reference_prefilter(K, F, n_error: int):
     return ct.ss(A, B, C, D, K.dt)
 
 
-def design_reference_prefilter(G, K, n_error: int, *, delay_samples: int = LOOP_DELAY_SAMPLES,
+def design_reference_prefilter(G, K, n_error: int, *, delay_samples: int = IDENTIFIED_DELAY_SAMPLES,
                                dt: float = DT_S):
     """``(K2, parameters)``: ``K`` with the reference notch of the module docstring's rule.
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from nanosim.design.architectures.common import (
     DT_S,
-    LOOP_DELAY_SAMPLES,
+    IDENTIFIED_DELAY_SAMPLES,
     BenchDesign,
     as_continuous,
     as_discrete,
@@ -111,7 +111,7 @@ def _shape(G0_inv, gain: float, modes_hz, notch_zeta: float, pi_zero_hz: float, 
 
 
 @single_threaded_blas
-def design_robust(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES, gains=GAINS,
+def design_robust(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, gains=GAINS,
                   reduced_order: int = REDUCED_ORDER, mu_max: float = MU_MAX,
                   disk_margin_min: float = DISK_MARGIN_MIN) -> BenchDesign:
     """Glover-McFarlane loop shaping, tuned by the rule of the module docstring.
