@@ -86,7 +86,7 @@ import numpy as np
 from nanosim import constants
 from nanosim.design.architectures.common import (
     DT_S,
-    IDENTIFIED_DELAY_SAMPLES as LOOP_DELAY_SAMPLES,     # the delay beyond the identified model (0)
+    IDENTIFIED_DELAY_SAMPLES,     # the delay beyond the identified model (0)
     BenchDesign,
     as_continuous,
     as_discrete,
@@ -331,7 +331,7 @@ def to_discrete(K, dt: float = DT_S):
     return ct.ss(ct.c2d(ct.ss(K.A, K.B, K.C, K.D), dt, "tustin"))
 
 
-def mode_damping(Gd, Kd, *, delay_samples: int = LOOP_DELAY_SAMPLES, f_band_hz=(100.0, 800.0),
+def mode_damping(Gd, Kd, *, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, f_band_hz=(100.0, 800.0),
                  min_peak: float | None = None, Ky=None) -> list[dict]:
     """Closed-loop poles in ``f_band_hz`` that the loop's inputs excite visibly, with their damping.
 
@@ -380,7 +380,7 @@ def least_damping_near(modes: list[dict], f_hz: float, rel: float = 0.05, rel_pe
     return min(m["zeta"] for m in near if m["peak"] >= rel_peak * top)
 
 
-def mode_damping_table(Gd, Kd, *, delay_samples: int = LOOP_DELAY_SAMPLES, Ky=None) -> list[dict]:
+def mode_damping_table(Gd, Kd, *, delay_samples: int = IDENTIFIED_DELAY_SAMPLES, Ky=None) -> list[dict]:
     """For each lightly damped mode of ``Gd`` (:func:`~nanosim.design.architectures.common.distinct_modes_hz`):
     its open-loop damping and the least closed-loop damping near it (:func:`least_damping_near`).
     """
@@ -407,7 +407,7 @@ def scaled_wp(Wp, scale: float):
 
 
 @single_threaded_blas
-def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = LOOP_DELAY_SAMPLES,
+def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIED_DELAY_SAMPLES,
                           reduced_order: int = REDUCED_ORDER, weights=None,
                           bandwidth_hz: float | None = None, reference_prefilter: bool = True,
                           disturbance_bandwidth_hz: float | None = DISTURBANCE_BANDWIDTH_HZ) -> BenchDesign:
