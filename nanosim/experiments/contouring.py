@@ -13,8 +13,7 @@ the hold's creep retraction, rejoin it in mid-path with a jump of gain),
 while an actuator that turns back starts on a branch of the tangent gain; on
 the 45 degree line actuator B turns back and A and C go on, so the X and Y
 gains, and lags, part: with axes that match otherwise, the contour error of
-that cycle is several times
-that of the repeated path. A full cycle between the path's own ends wipes the
+that cycle is several times that of the repeated path. A full cycle between the path's own ends wipes the
 approach out: every actuator then runs a branch from the path's turning
 points, alike on every cycle; the remaining cycles let the operators' thermal
 relaxation (creep) settle. ``first_cycle_*`` in the metrics keep the first
