@@ -1,15 +1,19 @@
 """Closed-loop experiment machinery: metrics on analytic signals, twin vs MuJoCo."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
 from nanosim.design.lti import crossing_hz
-from nanosim.experiments.contouring import contour_reference
+from nanosim.experiments.contouring import (CONDITIONING_S, conditioning_cycles, contour_error_nm, contour_reference,
+                                            contouring)
 from nanosim.experiments.loop import run_closed_loop, step_metrics
 from nanosim.experiments.small_steps import small_steps
 from nanosim.plant.twin import TwinStage
 from nanosim.design.controller import DiscreteController
 from nanosim.plant.linearize import linearize
+from nanosim.plant.piezo import PiezoConfig
 from nanosim.plant.stage import Stage, StageConfig
 
 
@@ -46,6 +50,28 @@ def test_contour_reference_is_the_45_degree_line_at_the_given_speed():
     assert_allclose(np.median(v[v > 0]), 100.0, rtol=0.01)
 
 
+def test_contour_error_is_the_distance_to_the_45_degree_line():
+    ref = contour_reference(1000.0)
+    d_nm = 37.0
+    normal = np.array([1.0, -1.0, 0.0]) / np.sqrt(2)             # unit normal of the line x = y
+    along = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    y = ref + 1e-3 * d_nm * normal + 0.8 * along                  # off the line by d, lagging along it
+    d, moving = contour_error_nm(ref, y)
+    assert_allclose(d, d_nm, rtol=1e-9)
+    assert moving.sum() == np.count_nonzero((ref[:, 0] > 0.5) & (ref[:, 0] < 19.5))
+
+
+def test_conditioning_cycles_cover_the_conditioning_time():
+    assert conditioning_cycles(0.1165) == 6                       # 1000 um/s: 6 x 0.1165 s >= 0.6 s
+    assert conditioning_cycles(5.7) == 1                          # 10 um/s: at least one cycle
+    assert conditioning_cycles(0.2, 0.6) == 3                     # exactly 0.6 s: no extra cycle
+    assert conditioning_cycles(0.3, 0.0) == 1
+    with pytest.raises(ValueError, match="cycle_s"):
+        conditioning_cycles(0.0)
+    with pytest.raises(ValueError, match="conditioning_s"):
+        conditioning_cycles(0.1, -1.0)
+
+
 @pytest.fixture(scope="module")
 def simple_controller():
     """The paper's mixed-sensitivity design on the reduced linear twin (no identification needed)."""
@@ -79,3 +105,27 @@ def test_small_steps_resolved_with_integral_action(simple_controller):
     simple_controller.reset()
     r = small_steps(fac, simple_controller, n_steps=3, dwell_s=0.1)
     assert_allclose(r.plateau_mean_nm, r.targets_nm, atol=1.0)
+
+
+def test_repeated_path_wipes_out_the_approach_memory_of_the_piezo(simple_controller, twin):
+    """The record is a cycle of the repeated path: hysteresis memory of the approach gone, linear loop unchanged.
+
+    On the first cycle after the approach from home, an actuator the hold had reversed rejoins its loading
+    curve in mid-path, its gain jumps and the axes' lags part; a full cycle between the path's ends wipes that
+    memory out. A linear, noise-free stage is periodic from the first cycle.
+    """
+    home = Stage(config=StageConfig.ideal()).table_um.copy()
+
+    def run(config):
+        fac = lambda s: TwinStage(twin, seed=s, config=config, home_um=home)
+        return contouring(fac, simple_controller, seed=0, speeds_um_s=(1000.0,))[0]
+
+    assert CONDITIONING_S == 0.6
+    hyst = run(StageConfig())
+    assert hyst.conditioning_cycles == 6
+    assert hyst.first_cycle_mean_error_nm > 3.0 * hyst.mean_error_nm
+    assert hyst.first_cycle_max_error_nm > 3.0 * hyst.max_error_nm
+    lin = run(StageConfig.ideal())
+    assert_allclose(lin.mean_error_nm, lin.first_cycle_mean_error_nm, atol=0.05)
+    # the hysteretic stage's recorded cycle is within 4x of the linear loop's X/Y mismatch (no memory jump)
+    assert hyst.mean_error_nm < 4.0 * run(replace(StageConfig(), piezo=PiezoConfig.linear())).mean_error_nm

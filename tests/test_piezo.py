@@ -456,3 +456,31 @@ def test_small_signal_creep_of_each_model():
     assert c == kv.creep_gains and tau == kv.creep_time_constants_s
     assert_allclose(s, kv.creep_instant_gain(), rtol=1e-15)
     assert PiezoConfig.athermal().small_signal_creep() == ((), (), 1.0)
+
+
+@pytest.mark.parametrize("density_scale_V", [5.0, 20.0, 80.0])
+def test_masing_bound_small_signal_gain_below_one_minus_output_hysteresis(density_scale_V):
+    """Rate-independent PI, 0 -> V -> 0 from the virgin state: tangent / secant <= 1 - output hysteresis.
+
+    The loading curve g (normalised, g(1) = 1) is convex with g(t) >= tau t, tau the tangent gain w0 over the
+    secant; by Masing's rule the down branch is 1 - 2 g((1 - v) / 2), so the width 1 - 2 g((1 - v) / 2) - g(v)
+    <= 1 - tau. A 15 % loop (paper Fig. 14) therefore allows at most 0.85 of the secant right after a
+    reversal, whatever the thresholds and weights.
+    """
+    r = np.array(PiezoConfig().pi_thresholds_V)
+    w = np.exp(-r / density_scale_V) * np.gradient(r)
+    for w0 in (0.05, 0.3, 1.0):
+        pi = PrandtlIshlinskii(list(r), list(w), linear_weight=w0, n_channels=1)
+        v = triangle(PEAK_V, 4000)
+        y = pi.run(v[:, None])[:, 0]
+        out_pct, _ = loop_hysteresis_percent(v, y, n_grid=20001)
+        tau = w0 / (y[4000] / PEAK_V)
+        assert tau <= 1 - out_pct / 100 + 1e-3
+
+
+def test_default_piezo_small_signal_gain_is_below_the_masing_bound():
+    """The calibrated piezo's tangent gain is 0.67 of its loop secant, under the 0.85 a 15 % PI loop allows."""
+    p = PiezoConfig()
+    assert_allclose(p.small_signal_gain(), 0.666, atol=0.005)
+    assert p.small_signal_gain() <= 0.85
+    assert p.small_signal_gain(10.0) < p.small_signal_gain(20.0) < 1.0      # minor loops: gain grows with size
