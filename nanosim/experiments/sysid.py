@@ -221,6 +221,8 @@ def _identify(settings: IdentifySettings, n0: int, tr_e, tr_v) -> IdentifiedStag
     shared = ident.refine_shared_poles(columns, est) if settings.shared_poles else None
     if shared is not None:
         columns = list(shared.columns)
+    # a real pole slower than the record is not resolved by it: its gain extrapolates past the data
+    columns = [without_slow_poles(col, len(est[j][0]) / C.CONTROL_RATE_HZ, *est[j]) for j, col in enumerate(columns)]
     fit = np.zeros((3, 3))
     for j, col in enumerate(columns):
         u_v, y_v = val[j]
@@ -272,6 +274,44 @@ def unshared_resonances_hz(columns, tol: float = SHARED_MODE_TOL, zeta_max: floa
         out.append([float(f) for f, z in zip(m.freq_hz, m.damping)
                     if z < zeta_max and not np.any(np.abs(others - f) <= tol * f)])
     return out
+
+
+def without_slow_poles(col, tau_max_s: float, u, y):
+    """``col`` without its real poles slower than ``tau_max_s`` (modal truncation), ``x0, B, D`` refitted.
+
+    A record of ``T`` seconds resolves a first-order process only if its time constant is shorter
+    than ``T``: a slower real pole (``tau = -dt / ln z > T``) fits drift, creep or the record's end, and
+    its gain, which sets the model's DC gain, extrapolates beyond the data. ``col`` itself when it has none.
+
+    Parameters
+    ----------
+    col : identification.IdentifiedModel
+        A 3x1 column model.
+    tau_max_s : float
+        Longest time constant kept [s] (the record's length).
+    u, y : ndarray
+        The column's estimation record, as :func:`without_resonances`.
+    """
+    import dataclasses
+
+    import scipy.linalg as sla
+
+    from identification.regression import fit_x0_B_D
+    dt = col.dt_s
+    z = np.linalg.eigvals(np.asarray(col.A, float))
+    slow = [p for p in z if abs(p.imag) < 1e-12 and 0 < p.real < 1 and -dt / np.log(p.real) > tau_max_s]
+    if not slow:
+        return col
+
+    def keep(re, im):
+        return not (abs(im) < 1e-12 and 0 < re < 1 and -dt / np.log(re) > tau_max_s)
+
+    T, Z, k = sla.schur(np.asarray(col.A, float), output="real", sort=keep)
+    X = sla.solve_sylvester(T[:k, :k], -T[k:, k:], -T[:k, k:])
+    Kt = Z.T @ np.asarray(col.K, float)
+    A1, C1, K1 = T[:k, :k], (np.asarray(col.C, float) @ Z)[:, :k], Kt[:k] - X @ Kt[k:]
+    x0, B1, D1 = fit_x0_B_D(A1, C1, np.asarray(u, float).reshape(len(u), -1), np.asarray(y, float), True)
+    return dataclasses.replace(col, A=A1, B=B1, C=C1, D=D1, K=K1, x0=x0, order=int(k))
 
 
 def without_resonances(col, freqs_hz, u, y):
