@@ -100,3 +100,42 @@ def test_config_errors_name_the_argument():
         CharacterizeConfig(drive="current")
     with pytest.raises(ValueError, match="electronics.drive: the batch electronics runs the voltage drive only"):
         BatchElectronics(ElectronicsConfig(drive="charge"), PiezoConfig(), [0])
+
+
+@pytest.mark.parametrize("drive", ["voltage", "charge"])
+def test_characterize_runs_every_experiment_with_the_drive_and_records_it(tmp_path, drive):
+    import json
+
+    from nanosim import experiments
+    from nanosim.experiments.registry import Experiment, register, unregister
+    from nanosim.fileio import write_npz
+    from nanosim.pipeline.characterize import run_characterize
+
+    def run(ctx):
+        stage = ctx.factory(ctx.seed)
+        return stage.config.electronics.drive, stage.actuators._charge is not None
+
+    experiments.load_builtin()
+    register(Experiment("drive_probe", run=run, metrics=lambda r: {"drive_probe": list(r)}, order=5, cost=0.1))
+    try:
+        ctrl = write_npz(tmp_path / "c.npz", Akd=np.zeros((1, 1)), Bkd=np.zeros((1, 3)), Ckd=np.zeros((3, 1)),
+                         Dkd=0.01 * np.eye(3), dt=2.5e-4)
+        m = run_characterize(ctrl, tmp_path / "out", CharacterizeConfig(only="drive_probe", twin=True, drive=drive),
+                             progress=False)
+    finally:
+        unregister("drive_probe")
+    assert m["drive_probe"] == [drive, drive == "charge"]
+    saved = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert saved.get("drive", "voltage") == drive
+    assert ("drive" in saved) == (drive == "charge")          # the default run's metrics.json is unchanged
+
+
+def test_cli_drive_option(tmp_path):
+    from nanosim.cli import build_parser
+
+    p = build_parser()
+    args = p.parse_args(["characterize", "--controller", __file__, "--out", str(tmp_path / "o"), "--drive", "charge"])
+    assert args.drive == "charge"
+    assert p.parse_args(["characterize", "--controller", __file__, "--out", str(tmp_path / "o")]).drive == "voltage"
+    with pytest.raises(SystemExit):
+        p.parse_args(["characterize", "--controller", __file__, "--out", str(tmp_path / "o"), "--drive", "current"])
