@@ -106,9 +106,10 @@ class ActuatorSample(NamedTuple):
     u_dac_V : ndarray
         DAC output (after quantisation and noise), controller volts.
     v_piezo_V : ndarray
-        Amplifier output (after saturation), piezo volts.
+        Amplifier output (after saturation), piezo volts; with ``drive="charge"`` the charge
+        command referred to piezo volts (``q / C_p``).
     v_free_V : ndarray
-        Free-strain voltage after hysteresis and creep, piezo volts.
+        Free-strain voltage after hysteresis and creep (and the charge drive), piezo volts.
     saturated : ndarray of bool
         Command outside the amplifier command range or the DAC range.
     """
