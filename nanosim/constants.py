@@ -13,7 +13,8 @@ __all__ = ["CONTROL_RATE_HZ", "CONTROL_PERIOD_S", "AMPLIFIER_GAIN", "COMMAND_RAN
            "PIEZO_FREE_STROKE_M", "PIEZO_BLOCKING_FORCE_N", "PIEZO_STIFFNESS_N_PER_M",
            "PIEZO_FORCE_PER_PIEZO_V", "CREEP_PER_DECADE", "CREEP_TAU_MIN_S", "CREEP_TAU_MAX_S",
            "CREEP_STAGES_PER_DECADE", "CREEP_REFERENCE_STEP_PIEZO_V",
-           "COMPUTATION_DELAY_SAMPLES", "AMPLIFIER_BANDWIDTH_HZ",
+           "COMPUTATION_DELAY_SAMPLES", "AMPLIFIER_BANDWIDTH_HZ", "PIEZO_CAPACITANCE_F", "CHARGE_CROSSOVER_HZ",
+           "CHARGE_RESIDUAL_HYSTERESIS", "CHARGE_SHUNT_OHM",
            "AMPLIFIER_NOISE_V", "DAC_WHITE_NOISE_V", "DAC_BITS", "DAC_FULL_SCALE_V", "DAC_CENTER_V",
            "BROADBAND_INPUT_NOISE_V",
            "THERMAL_EXPANSION_DIFF_PER_K", "THERMAL_LOOP_LENGTH_M", "THERMAL_DRIFT_TAU_S", "THERMAL_AIR_TAU_S",
@@ -77,6 +78,22 @@ COMPUTATION_DELAY_SAMPLES = 0
 # into an APA35XS (0.05-0.5 uF, estimated) the RC pole is above 100 kHz and the amplifier's own
 # bandwidth dominates: >= 10 kHz; 10 kHz is the conservative end (a lag of 16 us).
 AMPLIFIER_BANDWIDTH_HZ = 10e3
+# --- the charge amplifier (ElectronicsConfig(drive="charge"), nanosim.plant.charge_drive) ----------------
+# APA35XS capacitance: estimate [E] 0.2 uF in [0.05, 0.5] uF (no Cedrat datasheet value in reach; the range
+# of the amplifier-bandwidth estimate above, a small multilayer stack of the APA-XS class).
+PIEZO_CAPACITANCE_F = 0.2e-6
+# Crossover below which the charge drive is a voltage drive, f_c = 1 / (2 pi R_p C_p) (Fleming & Moheimani,
+# Rev. Sci. Instrum. 76, 073707 (2005); Fleming & Leang 2014, Ch. 12): as low as the shunt allows, since the
+# hysteresis returns below it; the shunt's leakage and the settling of a DC move (time constant R_p C_p) bound
+# it from below. Usual choice [E] 0.01-1 Hz; 0.1 Hz, a decade below the slowest paper loop (Fig. 14, 0.5 Hz),
+# and a 1.6 s settling of the DC level.
+CHARGE_CROSSOVER_HZ = 0.1
+# The shunt that sets it: R_p = 1 / (2 pi f_c C_p) = 8 Mohm (R_s C_s = R_p C_p).
+CHARGE_SHUNT_OHM = 1.0 / (2.0 * np.pi * CHARGE_CROSSOVER_HZ * PIEZO_CAPACITANCE_F)
+# Fraction of the voltage drive's hysteresis left under charge drive: "a 5-fold reduction" (Fleming & Leang
+# 2014, Ch. 12, citing Ge & Jouaneh 1996 and Fleming 2010); 84-90 % less at 0.05-10 Hz (Zhang et al.,
+# Electron. Lett. 48, 697 (2012)). 0.2 in [0.1, 0.2].
+CHARGE_RESIDUAL_HYSTERESIS = 0.2
 # Amplifier noise, referred to its input (controller V per sample over the 2 kHz Nyquist band):
 # PD200 0.7 mV rms at the output into 10 uF (ENBW 1.57 x 7.4 kHz) -> 6.5 uV/sqrt(Hz) at the
 # piezo -> 0.33 uV/sqrt(Hz) at the input -> 14.5 uV rms over 2 kHz.

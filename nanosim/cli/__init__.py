@@ -112,6 +112,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--feedforward", default=None, choices=("inverse-pi",),
                    help="hysteresis compensation: the inverse Prandtl-Ishlinskii operator of the piezo, open loop "
                         "(hysteresis) and behind the controller (hysteresis, tracking, contouring)")
+    c.add_argument("--drive", default="voltage", choices=("voltage", "charge"),
+                   help="piezo amplifier of every experiment: voltage (the bench's) or a charge amplifier "
+                        "(hysteresis reduced above its 0.1 Hz crossover, voltage drive below it)")
     c.set_defaults(func=_cmd_characterize)
     pl = sub.add_parser("pipeline", help="run the whole chain on the bundled stage")
     pl.add_argument("--out", required=True, type=out, help="run folder for artifacts")

@@ -130,7 +130,8 @@ def _cmd_characterize(args) -> int:
         raise ValueError(f"--only: expected one of {', '.join(known)}, got {args.only!r}")
     _check_mjcf(args)
     controller = _check_controller(args.controller, args.mjcf)         # validate before any work
-    cfg = CharacterizeConfig(seed=args.seed, only=args.only, twin=args.twin, feedforward=args.feedforward)
+    cfg = CharacterizeConfig(seed=args.seed, only=args.only, twin=args.twin, feedforward=args.feedforward,
+                             drive=args.drive)
     t0 = time.perf_counter()
     with staged_run(args.out, keep_existing=True, seed=args.seed) as stage:
         step_characterize(stage, cfg, controller_npz=controller, mjcf=args.mjcf)

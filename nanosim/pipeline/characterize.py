@@ -7,6 +7,7 @@ import os
 import sys
 import time
 import queue
+from dataclasses import replace
 import threading
 from pathlib import Path
 
@@ -22,11 +23,11 @@ from nanosim.pipeline.timings import read_timings, record_timings
 from nanosim.plant.floor import floor_model
 from nanosim.plant.runplant import RunPlant
 from nanosim.plant.modes import modal_analysis
-from nanosim.plant.stage import Stage, StageConfig
+from nanosim.plant.stage import STAGE_ELECTRONICS, Stage, StageConfig
 from nanosim.plant.twin import TwinStage
 
-__all__ = ["make_factory", "make_plant_factory", "run_characterize", "experiment_task", "write_task_metrics",
-           "METRICS_UNITS", "plant_description", "write_metrics"]
+__all__ = ["stage_config", "make_factory", "make_plant_factory", "run_characterize", "experiment_task",
+           "write_task_metrics", "METRICS_UNITS", "plant_description", "write_metrics"]
 
 # metrics.json's "units": the unit suffixes of its keys
 METRICS_UNITS = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
@@ -35,6 +36,15 @@ METRICS_UNITS = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "mil
 def plant_description(twin: bool) -> str:
     """The ``plant`` entry of ``metrics.json`` (and of ``scorecard.json``)."""
     return "linear twin (same electromechanics)" if twin else "MuJoCo stage, every effect on"
+
+
+def stage_config(drive: str = "voltage") -> StageConfig | None:
+    """The stage config of ``characterize --drive``: None (the bench's) for ``"voltage"``, else the bench
+    electronics with that amplifier (:attr:`~nanosim.plant.electronics.ElectronicsConfig.drive`).
+    """
+    if drive == "voltage":
+        return None
+    return StageConfig(electronics=replace(STAGE_ELECTRONICS, drive=drive))
 
 
 def make_factory(twin: bool, mjcf=None, config: StageConfig | None = None):
@@ -132,7 +142,7 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
     if unknown:
         raise ValueError(f"only: unknown experiment {unknown[0]!r}; expected one of {list(known)}")
     ctrl = DiscreteController(read_controller_file(controller_path, dt=C.CONTROL_PERIOD_S))
-    factory, base = make_factory(cfg.twin, mjcf=mjcf)
+    factory, base = make_factory(cfg.twin, mjcf=mjcf, config=stage_config(cfg.drive))
     G0 = modal_analysis(base.model).static_gain_um_per_V if "creep" in names else None
     metrics: dict = {}
     prev = out / A.METRICS_JSON
@@ -183,6 +193,9 @@ def run_characterize(controller_path, out_dir, config: CharacterizeConfig | None
     metrics.pop("feedforward", None)
     if cfg.feedforward is not None:             # the compensation the hysteresis, tracking and contouring ran with
         metrics["feedforward"] = cfg.feedforward
+    metrics.pop("drive", None)
+    if cfg.drive != "voltage":                  # the amplifier every experiment ran with (absent: voltage)
+        metrics["drive"] = cfg.drive
     write_metrics(out, metrics, twin=cfg.twin, seed=cfg.seed, seconds=_in_registry_order(timing, known),
                   plant_by_experiment=by_exp if cfg.only else None)
     return metrics

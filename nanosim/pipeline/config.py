@@ -164,6 +164,10 @@ class CharacterizeConfig:
         Hysteresis compensation (``"inverse-pi"``: the inverse Prandtl-Ishlinskii operator of the
         stage's piezo, open loop in the hysteresis experiment and behind the controller in the
         hysteresis, tracking and contouring loops); None: none.
+    drive : {"voltage", "charge"}
+        The piezo amplifier of every experiment: the bench's voltage amplifier, or a charge amplifier
+        (:mod:`nanosim.plant.charge_drive`, its crossover and residual at their
+        :class:`~nanosim.plant.electronics.ElectronicsConfig` defaults).
     """
 
     seed: int = 0
@@ -171,6 +175,7 @@ class CharacterizeConfig:
     twin: bool = False
     workers: int | None = None
     feedforward: str | None = None
+    drive: str = "voltage"
 
     def __post_init__(self):
         _check_seed(self.seed)
@@ -179,6 +184,10 @@ class CharacterizeConfig:
         if self.feedforward is not None and self.feedforward not in FEEDFORWARD_CHOICES:
             raise ValueError(f"feedforward: expected None or one of {', '.join(FEEDFORWARD_CHOICES)}, "
                              f"got {self.feedforward!r}")
+        from nanosim.plant.charge_drive import DRIVES
+
+        if self.drive not in DRIVES:
+            raise ValueError(f"drive: expected one of {', '.join(DRIVES)}, got {self.drive!r}")
         if self.workers is not None and (not isinstance(self.workers, int) or self.workers < 1):
             raise ValueError(f"workers: expected a positive integer, got {self.workers!r}")
 

@@ -265,6 +265,10 @@ class BatchElectronics:
     """
 
     def __init__(self, electronics: ElectronicsConfig, piezo: PiezoConfig, seeds: Sequence[int]):
+        if electronics.drive != "voltage":
+            raise ValueError(f"electronics.drive: the batch electronics runs the voltage drive only; expected "
+                             f"'voltage', got {electronics.drive!r} (run the charge drive on single stages: "
+                             f"Stage, TwinStage)")
         self.electronics, self.piezo_config = electronics, piezo
         self.seeds = list(seeds)
         if not self.seeds:

@@ -8,6 +8,8 @@ Actuator side (per channel, vectorised over the 3 actuators)::
       -> amplifier: clip to the command range [-1, 7.5] V (flag), x20, first-order small-signal
          bandwidth into the piezo capacitance -> v_piezo (V, mean over the sample period)
       -> piezo (nanosim.plant.piezo): PI hysteresis -> log creep -> v_free (V)
+      -> drive="charge": the charge amplifier keeps a fraction of the hysteresis and creep above its
+         crossover (nanosim.plant.charge_drive); v_piezo is then the charge command in piezo volts
 
 The mechanics applies the tendon force ``F = PIEZO_FORCE_PER_PIEZO_V * v_free``.
 
@@ -73,6 +75,7 @@ from scipy.signal import lfilter
 
 from nanosim.validation import as_finite_array
 from nanosim.plant.noise import NormalStream, child_seed
+from nanosim.plant.charge_drive import ChargeDrive
 from nanosim.plant.filters import AmplifierLag, DelayLine, FlickerShaper, SampledFilter, butterworth_lowpass
 from nanosim.plant.piezo import PiezoConfig, PiezoModel
 from nanosim.plant.electronics_config import ElectronicsConfig
@@ -103,9 +106,10 @@ class ActuatorSample(NamedTuple):
     u_dac_V : ndarray
         DAC output (after quantisation and noise), controller volts.
     v_piezo_V : ndarray
-        Amplifier output (after saturation), piezo volts.
+        Amplifier output (after saturation), piezo volts; with ``drive="charge"`` the charge
+        command referred to piezo volts (``q / C_p``).
     v_free_V : ndarray
-        Free-strain voltage after hysteresis and creep, piezo volts.
+        Free-strain voltage after hysteresis and creep (and the charge drive), piezo volts.
     saturated : ndarray of bool
         Command outside the amplifier command range or the DAC range.
     """
@@ -222,6 +226,8 @@ class ActuatorChain:
         self._drift_start()
         self._delay = DelayLine(e.computation_delay_samples, self.n_channels)
         self._lag = AmplifierLag(e.amplifier_bandwidth_Hz, self.dt_s, self.n_channels)
+        self._charge = (ChargeDrive(e.charge_crossover_Hz, e.charge_residual, self.dt_s, self.n_channels)
+                        if e.drive == "charge" else None)
         self._quant = e.dac_quantization
         if self._quant:
             self._lsb = e.dac_lsb_V
@@ -256,7 +262,7 @@ class ActuatorChain:
         self._noise.reset()
         self._ar_state = np.zeros((2, self.n_channels))
         for part in (self._flicker, self._flicker_noise, self._amp_noise, self._delay, self._lag,
-                     self._drift_noise):
+                     self._drift_noise, self._charge):
             if part is not None:
                 part.reset()
         self._drift_start()
@@ -349,6 +355,8 @@ class ActuatorChain:
         u_dac, v_amp, sat = self._electronics(u, self._noise_step(), amp)
         v_piezo = self._lag.step(v_amp)
         v_free = self.piezo._step(v_piezo)
+        if self._charge is not None:
+            v_free = self._charge.step(v_piezo, v_free)
         return ActuatorSample(u_dac, v_piezo, v_free, sat)
 
     def run(self, u_V) -> ActuatorSample:
@@ -369,6 +377,8 @@ class ActuatorChain:
         u_dac, v_amp, sat = self._electronics(u, self._noise_run(u.shape[0]), amp)
         v_piezo = self._lag.run(v_amp)
         v_free = self.piezo._run(v_piezo)
+        if self._charge is not None:
+            v_free = self._charge.run(v_piezo, v_free)
         return ActuatorSample(u_dac, v_piezo, v_free, sat)
 
 

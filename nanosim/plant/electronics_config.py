@@ -13,6 +13,7 @@ import numpy as np
 
 from nanosim import constants as C
 from nanosim.validation import as_finite_array
+from nanosim.plant.charge_drive import DRIVES
 from nanosim.plant.filters import enbw_hz
 
 __all__ = ["ElectronicsConfig"]
@@ -65,6 +66,14 @@ class ElectronicsConfig:
     amplifier_bandwidth_Hz : float or None
         Small-signal -3 dB bandwidth of the amplifier driving the piezo
         capacitance (first order); ``None``: instantaneous.
+    drive : {"voltage", "charge"}
+        ``"voltage"``: the amplifier sets the piezo voltage. ``"charge"``: a charge
+        amplifier sets its charge above ``charge_crossover_Hz`` (hysteresis and creep
+        reduced to ``charge_residual``), a voltage below it (:mod:`nanosim.plant.charge_drive`).
+    charge_crossover_Hz : float
+        ``f_c = 1 / (2 pi R_p C_p)`` of the charge amplifier, Hz (> 0; 0.1 Hz).
+    charge_residual : float
+        Fraction of the voltage drive's hysteresis left above ``f_c`` (0 ... 1; 0.2).
     saturation : bool
         Clip the command to ``command_range_V`` before the gain.
     command_range_V : tuple of float
@@ -112,6 +121,9 @@ class ElectronicsConfig:
     amplifier_noise_V: float = C.AMPLIFIER_NOISE_V
     amplifier_gain: float = C.AMPLIFIER_GAIN
     amplifier_bandwidth_Hz: float | None = C.AMPLIFIER_BANDWIDTH_HZ
+    drive: str = "voltage"
+    charge_crossover_Hz: float = C.CHARGE_CROSSOVER_HZ
+    charge_residual: float = C.CHARGE_RESIDUAL_HYSTERESIS
     saturation: bool = True
     command_range_V: tuple = C.COMMAND_RANGE_V
     sensor_noise: bool = True
@@ -134,8 +146,16 @@ class ElectronicsConfig:
             object.__setattr__(self, name, x)
 
         for name in ("sample_rate_Hz", "dac_full_scale_V", "amplifier_gain", "sensor_range_um",
-                     "sensor_um_per_V", "adc_full_scale_V", "thermal_drift_tau_s", "thermal_air_tau_s"):
+                     "sensor_um_per_V", "adc_full_scale_V", "thermal_drift_tau_s", "thermal_air_tau_s",
+                     "charge_crossover_Hz"):
             positive(name)
+        if self.drive not in DRIVES:
+            raise ValueError(f"drive: expected one of {', '.join(DRIVES)}, got {self.drive!r}")
+        rho = self.charge_residual
+        if isinstance(rho, bool) or not isinstance(rho, (int, float, np.floating, np.integer)) \
+                or not 0.0 <= float(rho) <= 1.0:
+            raise ValueError(f"charge_residual: expected a fraction in [0, 1], got {rho!r}")
+        object.__setattr__(self, "charge_residual", float(rho))
         fc = self.dac_flicker_corner_Hz
         if fc is not None and (not np.isfinite(float(fc)) or float(fc) < 0):
             raise ValueError(f"dac_flicker_corner_Hz: expected None or a finite value >= 0, got {fc!r}")
