@@ -108,3 +108,34 @@ def test_identify_config_names_bad_bands():
     for bad in ((), (50.0, 2500.0), [50.0], (0.0,), (True,), ("50",)):
         with pytest.raises(ValueError, match=r"bands_hz: expected a non-empty tuple of band edges in \(0, 2000\] Hz"):
             IdentifyConfig(bands_hz=bad)
+
+
+def test_a_real_pole_slower_than_the_record_is_removed_and_the_rest_kept():
+    """A column with a 200 Hz mode and two real poles (tau 0.05 s and 20 s) on a 2 s record: the 20 s pole is
+    dropped, the others stay exactly, and the refitted column reproduces the record's fast part."""
+    import dataclasses
+
+    from nanosim.experiments.sysid import without_slow_poles
+    dt = 250e-6
+    w, z = 2 * np.pi * 200.0, 0.01
+    r = np.exp(-z * w * dt)
+    th = w * np.sqrt(1 - z * z) * dt
+    A = np.zeros((4, 4))
+    A[:2, :2] = r * np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    A[2, 2], A[3, 3] = np.exp(-dt / 0.05), np.exp(-dt / 20.0)
+    B = np.array([[1.0], [0.5], [0.02], [1e-4]])
+    C = np.array([[1.0, 0.0, 1.0, 1.0], [0.0, 1.0, 0.5, 0.5], [0.3, 0.2, 0.1, 0.2]])
+    u = np.random.default_rng(0).choice([-1.0, 1.0], size=8000)
+    x = np.zeros(4)
+    ys = np.empty((u.size, 3))
+    for k, uk in enumerate(u):
+        ys[k] = C @ x
+        x = A @ x + B[:, 0] * uk
+    col = ident.subspace_id(ys, u[:, None], order=4, fs=1 / dt)
+    col = dataclasses.replace(col, A=A, B=B, C=C, D=np.zeros((3, 1)), K=np.zeros((4, 3)), x0=np.zeros(4), order=4)
+    kept = without_slow_poles(col, 2.0, u, ys)
+    assert kept.order == 3
+    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(kept.A)),
+                               np.sort_complex(np.linalg.eigvals(A)[:3]), rtol=1e-9)
+    assert ident.fit_percent(ys, ident.simulate(kept, u[:, None], kept.x0)).min() > 99.0
+    assert without_slow_poles(col, 30.0, u, ys) is col            # nothing slower than 30 s: unchanged
