@@ -101,16 +101,16 @@ def test_pipeline_end_to_end(tmp_path):
     assert m["creep"]["closed_loop_drift_nm"] < 5.0 < 50.0 < m["creep"]["open_loop_drift_nm"]
     # Closed-loop figures are predictions of the stage with the exported four-block H-infinity design; nothing
     # closed-loop was fitted. Where the prediction meets the paper's figure, the paper's figure is the bound
-    # (nanosim.paper.PAPER); where it does not (the one-degree-of-freedom step, the fast contour), the bound is the
-    # prediction's band on the twin over seeds 0-4 with a margin, and the paper's figure is stated.
+    # (nanosim.paper.PAPER); where it does not (the step's settling, which the piezo's creep sets), the bound is the
+    # prediction's band on MuJoCo over seeds 0-4 with a margin, and the paper's figure is stated.
     assert m["hysteresis"]["closed_loop_nm"] < 20.0                      # paper <= 20 nm
     assert m["resolution_sigma_table_nm"]["closed_loop"] <= P.PAPER["sig_c"]
     assert_allclose(m["small_steps"]["plateau_means_nm"], m["small_steps"]["targets_nm"], atol=3.0)
-    assert m["bandwidth_S_hz"] >= 0.95 * P.PAPER["bwS"]                  # the design spec: 32 Hz on the model
-    assert m["step_2um_worst"]["overshoot_percent"] <= 25.0              # paper 8 %
-    assert m["step_2um_worst"]["settling_ms"] <= 40.0                    # paper 11 ms
+    assert m["bandwidth_S_hz"] >= P.PAPER["bwS"]                         # the feedback loop's S, paper 32 Hz
+    assert m["step_2um_worst"]["overshoot_percent"] <= 10.0              # paper 8 %
+    assert m["step_2um_worst"]["settling_ms"] <= 20.0                    # paper 11 ms
     fast = [c for c in m["contouring"] if c["speed_um_s"] == 1000.0][0]
-    assert fast["mean_error_nm"] <= 130.0                                # paper 40 nm
+    assert fast["mean_error_nm"] <= 80.0                                 # paper 40 nm
     report = (run_dir / "report.md").read_text()
     assert "Paper vs simulation" in report and "![" in report and "linear twin" in report
     checker = Path(__file__).resolve().parent / "data" / "shared" / "tools" / "compare_to_paper.py"

@@ -170,13 +170,14 @@ def bandwidth(factory: StageFactory, controller, seed=0, duration_s=PRBS_DURATIO
     sT = np.linalg.svd(T, compute_uv=False)[:, 0]
     sE = np.linalg.svd(np.eye(3)[None] - T, compute_uv=False)[:, 0]
     bE = crossing_hz(fb, sE, lvl, rising=True)
-    config = controller.config
-    if config.n_in > config.n_error:
+    config = getattr(controller, "config", None)        # None: a controller object without matrices
+    if config is not None and config.n_in > config.n_error:
         est_U = ident.h1_estimate(ref, cl.u_V, fs=FS, nperseg=2048)
         sS = feedback_sensitivity_sigma(T, est_U.H[band], config, fb)
         method = "(I + G K_fb)^-1, G = T_yr T_ur^-1 from the reference record (two degrees of freedom)"
     else:
-        sS, method = sE, "I - T (one degree of freedom)"
+        sS, method = sE, ("I - T (one degree of freedom)" if config is not None else
+                          "I - T (a controller object: its reference path is taken as one degree of freedom)")
     bS = crossing_hz(fb, sS, lvl, rising=True)
     bT = crossing_hz(fb, sT, lvl, rising=False)
     plan = [(axis, sign, hold) for hold in holds_s for axis in axes for sign in (1, -1)]
