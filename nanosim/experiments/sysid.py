@@ -292,26 +292,14 @@ def without_slow_poles(col, tau_max_s: float, u, y):
     u, y : ndarray
         The column's estimation record, as :func:`without_resonances`.
     """
-    import dataclasses
-
-    import scipy.linalg as sla
-
-    from identification.regression import fit_x0_B_D
     dt = col.dt_s
     z = np.linalg.eigvals(np.asarray(col.A, float))
     slow = [p for p in z if abs(p.imag) < 1e-12 and 0 < p.real < 1 and -dt / np.log(p.real) > tau_max_s]
     if not slow:
         return col
 
-    def keep(re, im):
-        return not (abs(im) < 1e-12 and 0 < re < 1 and -dt / np.log(re) > tau_max_s)
-
-    T, Z, k = sla.schur(np.asarray(col.A, float), output="real", sort=keep)
-    X = sla.solve_sylvester(T[:k, :k], -T[k:, k:], -T[:k, k:])
-    Kt = Z.T @ np.asarray(col.K, float)
-    A1, C1, K1 = T[:k, :k], (np.asarray(col.C, float) @ Z)[:, :k], Kt[:k] - X @ Kt[k:]
-    x0, B1, D1 = fit_x0_B_D(A1, C1, np.asarray(u, float).reshape(len(u), -1), np.asarray(y, float), True)
-    return dataclasses.replace(col, A=A1, B=B1, C=C1, D=D1, K=K1, x0=x0, order=int(k))
+    return _modal_truncation(col, lambda re, im: not (abs(im) < 1e-12 and 0 < re < 1
+                                                      and -dt / np.log(re) > tau_max_s), u, y)
 
 
 def without_resonances(col, freqs_hz, u, y):
@@ -333,12 +321,6 @@ def without_resonances(col, freqs_hz, u, y):
     identification.IdentifiedModel
         Two states less per resonance; the other poles exactly those of ``col``.
     """
-    import dataclasses
-
-    import scipy.linalg as sla
-
-    from identification.regression import fit_x0_B_D
-
     def keep(re, im):
         z = complex(re, im)
         if z == 0:
@@ -346,6 +328,18 @@ def without_resonances(col, freqs_hz, u, y):
         s = np.log(z) / col.dt_s
         return not any(abs(abs(s) / (2 * np.pi) - f) <= 1e-9 * f for f in freqs_hz)
 
+    return _modal_truncation(col, keep, u, y)
+
+
+def _modal_truncation(col, keep, u, y):
+    """``col`` reduced to the eigenvalues ``keep(re, im)`` accepts (ordered real Schur form, block-diagonalized),
+    ``x0, B, D`` refitted on the record ``u, y``; the kept poles are exactly those of ``col``.
+    """
+    import dataclasses
+
+    import scipy.linalg as sla
+
+    from identification.regression import fit_x0_B_D
     T, Z, k = sla.schur(np.asarray(col.A, float), output="real", sort=keep)
     X = sla.solve_sylvester(T[:k, :k], -T[k:, k:], -T[:k, k:])          # block-diagonalizes T
     Kt = Z.T @ np.asarray(col.K, float)
