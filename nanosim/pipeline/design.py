@@ -274,9 +274,12 @@ def _export_bench(out: Path, G, dt: float, loop_delay: int, units, say, architec
                                     "controller_order": int(bd.K.nstates), "parameters": p},
             "architecture_note": (f"controller.npz holds the {architecture} design (nanosim.design.architectures; "
                                   f"nanosim design --architecture NAME exports another bench member, --paper-design "
-                                  f"the paper's own); reference_design and the S/T peaks, bandwidths and closed_loop_* "
-                                  f"entries describe the mixed-sensitivity reference of these settings (--architecture "
-                                  f"mixsyn), whose figures are fig12, fig18, fig21 and fig22")}
+                                  f"the paper's own); exported_controller.parameters holds its reduction, weights and "
+                                  f"predictions, and fig11b, fig12, fig18, fig21 and fig22 show it; reference_design "
+                                  f"and the top-level reduction, discretization, S/T peak, bandwidth and "
+                                  f"closed_loop_min_* entries describe the mixed-sensitivity reference of these "
+                                  f"settings (--architecture mixsyn), with loop figures "
+                                  f"{REFERENCE_FIGURE_PREFIX}fig*")}
 
 
 def _mode_damping(controller_npz, plants: dict) -> dict:
