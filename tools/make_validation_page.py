@@ -149,6 +149,15 @@ def scorecard(folder: Path) -> list[str]:
     return out
 
 
+def architecture(controller_npz: str) -> str:
+    """The ``method`` a controller file states (its bench architecture), or ``unknown`` when the file is gone."""
+    try:
+        with np.load(controller_npz) as z:
+            return str(z["method"]) if "method" in z.files else "unknown"
+    except OSError:
+        return "unknown"
+
+
 def montecarlo(folder: Path) -> list[str]:
     """The yield table of a ``nanosim montecarlo`` folder (or of each controller's folder inside it)."""
     out = []
@@ -157,12 +166,15 @@ def montecarlo(folder: Path) -> list[str]:
         folders = [folder]
     else:                   # several controllers: one Monte Carlo folder each
         folders = sorted(d for d in folder.iterdir() if (d / "summary.json").is_file())
+    bench = folder / "montecarlo_bench.json"
+    files = json.loads(bench.read_text())["controllers"] if bench.is_file() else {}
     for f in folders:
         s = json.loads((f / "summary.json").read_text())
+        name = f"{f.name} (`{architecture(files[f.name]['file'])}`)" if f.name in files else f.name
         rows = [[y["label"], f"`{y['metric']}`", f"{y['pass']}/{y['n']}", y["yield_percent"],
                  f"{fmt(y['ci95_percent'][0])} - {fmt(y['ci95_percent'][1])}", y.get("median"), y.get("worst"),
                  y["unit"]] for y in s["yield"]]
-        out += [f"**{f.name}**: {s['n']} fabricated stages, tolerance seed {s['seed']}; cross-checked on MuJoCo: "
+        out += [f"**{name}**: {s['n']} fabricated stages, tolerance seed {s['seed']}; cross-checked on MuJoCo: "
                 f"{s.get('crosscheck_pass', 0)} of {s.get('crosscheck_n', 0)} agree.", ""]
         out += table(["limit", "metric", "pass", "yield [%]", "95 % Wilson interval [%]", "median", "worst", "unit"],
                      rows) + [""]
