@@ -6,7 +6,16 @@ measured directly. For two degrees of freedom (``u = K_e e + K_y y``, a referenc
 the reference-to-error map also holds the prefilter, so ``S`` is computed from the same
 record by the indirect closed-loop method (Ljung, *System Identification*, 2nd ed., Sec. 13.5):
 the plant as the loop runs it, ``G = T_yr T_ur^-1`` (both H1 estimates from the reference),
-closed with the controller's known feedback part ``K_fb = K_e - K_y``.
+closed with the controller's known feedback part ``K_fb = K_e - K_y``. The method is a
+:class:`SensitivityMethod` (a formula, e.g. ``I - T``, and its explanation), recorded beside the curve.
+
+:func:`nanosim.pipeline.compare.reading_disturbance_sensitivity` measures the same ``S`` directly, with
+its own record (a PRBS added to the reading, zero reference), for any controller: on a linear loop the two
+agree (the ``lqg`` design on the linear twin with every electromechanical effect off: 60.8 Hz here, 60.9 Hz
+there); with the piezo's hysteresis in the loop each is the best linear description of the loop under its
+own excitation, and they can differ by some percent (the same ``lqg`` on the twin in the bench's
+electromechanics: 46 Hz here, 50 Hz there). Both use :func:`prbs_references`, :func:`h1_in_band` and
+:func:`sigma_in_band`.
 
 The step is measured in eight cases: +X, -X, +Y and -Y, each after a hold of
 1 s and of 3 s at the origin (:data:`STEP_HOLDS_S`), every case on a fresh
@@ -45,13 +54,17 @@ from nanosim.plant.linearize import linearize
 from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_bandwidth
 
-__all__ = ["BandwidthResult", "StepCase", "bandwidth", "step_case", "predicted_loop", "controller_response",
-           "feedback_sensitivity_sigma", "PRBS_DURATION_S",
-           "PRBS_AMPLITUDE_UM", "STEP_HOLDS_S", "STEP_RECORD_S", "STEP_LEAD_S", "HEADLINE_STEP"]
+__all__ = ["BandwidthResult", "StepCase", "SensitivityMethod", "bandwidth", "step_case", "predicted_loop",
+           "controller_response", "indirect_sensitivity_sigma", "prbs_references", "h1_in_band", "sigma_in_band",
+           "SENSITIVITY_ONE_DOF", "SENSITIVITY_OBJECT", "SENSITIVITY_INDIRECT", "PRBS_DURATION_S", "PRBS_CLOCK_HZ",
+           "PRBS_BAND_HZ", "PRBS_AMPLITUDE_UM", "STEP_HOLDS_S", "STEP_RECORD_S", "STEP_LEAD_S", "HEADLINE_STEP"]
 
-# The PRBS references (also the reading disturbance of nanosim.pipeline.compare.feedback_sensitivity)
+# The PRBS references (also the reading disturbance of nanosim.pipeline.compare.reading_disturbance_sensitivity):
+# duration, amplitude, the PRBS clock and the band the responses are estimated on [Hz].
 PRBS_DURATION_S = 4.0
 PRBS_AMPLITUDE_UM = 2.0
+PRBS_CLOCK_HZ = 800.0
+PRBS_BAND_HZ = (1.0, 1000.0)
 # The 2 um step: holds at the origin before the record [s], the record after the step [s] and the
 # part of the record at the origin before the step [s].
 STEP_HOLDS_S = (1.0, 3.0)
@@ -59,6 +72,33 @@ STEP_RECORD_S = 0.3
 STEP_LEAD_S = 0.01
 # The case reported as ``step_2um``: (axis, sign, hold_s).
 HEADLINE_STEP = (0, 1, 1.0)
+
+
+@dataclass(frozen=True)
+class SensitivityMethod:
+    """How a measured ``sigma(S)`` was obtained.
+
+    Attributes
+    ----------
+    formula : str
+        The map measured, short enough for a legend: ``"I - T"`` or ``"(I + G K_fb)^-1"``.
+    explanation : str
+        What it was computed from and why this formula (a sentence fragment).
+    """
+
+    formula: str
+    explanation: str
+
+    def describe(self) -> str:
+        """``"formula, explanation"``: the text of ``metrics.json``'s ``sensitivity_method``."""
+        return f"{self.formula}, {self.explanation}"
+
+
+SENSITIVITY_ONE_DOF = SensitivityMethod("I - T", "the reference-to-error map (one degree of freedom)")
+SENSITIVITY_OBJECT = SensitivityMethod(
+    "I - T", "the reference-to-error map (a controller object: its reference path is taken as one degree of freedom)")
+SENSITIVITY_INDIRECT = SensitivityMethod(
+    "(I + G K_fb)^-1", "G = T_yr T_ur^-1 from the reference record, K_fb = K_e - K_y (two degrees of freedom)")
 
 
 @dataclass(frozen=True)
@@ -93,7 +133,11 @@ class StepCase:
 
 @dataclass(frozen=True)
 class BandwidthResult:
-    """sigma(S), sigma(T) measured with PRBS references (Hz grid), their -3 dB bandwidths and the 2 um step."""
+    """sigma(S), sigma(T) measured with PRBS references (Hz grid), their -3 dB bandwidths and the 2 um step.
+
+    ``sensitivity_method`` says how ``sigma_S`` was obtained; ``bandwidth_reference_error_hz`` is the
+    ``I - T`` crossing whatever the method (equal to ``bandwidth_S_hz`` for one degree of freedom).
+    """
 
     freq_hz: np.ndarray
     sigma_S: np.ndarray
@@ -108,7 +152,7 @@ class BandwidthResult:
     steps: tuple = ()
     protocol: LoopProtocol = LOOP_PROTOCOL
     bandwidth_reference_error_hz: float = float("nan")
-    sensitivity_method: str = "I - T (one degree of freedom)"
+    sensitivity_method: SensitivityMethod = SENSITIVITY_ONE_DOF
 
     @property
     def worst_step(self) -> dict:
@@ -157,27 +201,19 @@ def bandwidth(factory: StageFactory, controller, seed=0, duration_s=PRBS_DURATIO
     (``rise_ms`` ... ``overshoot_percent``, ``step``) are :data:`HEADLINE_STEP`'s
     case, or the first case when that one is not among them.
     """
-    n = int(duration_s * FS)
-    ref = ident.prbs_channels(n, 800.0, fs=FS, n_channels=3, amplitude=amplitude_um,
-                              seed=stream_seed(seed, "bandwidth.reference"))
+    ref = prbs_references(int(duration_s * FS), amplitude_um, stream_seed(seed, "bandwidth.reference"))
     cl = run_closed_loop(factory(stream_seed(seed, "bandwidth", 0)), controller, ref, protocol=protocol)
-    est_T = ident.h1_estimate(ref, cl.y_um, fs=FS, nperseg=2048)
-    f = est_T.freq_hz
-    band = (f >= 1.0) & (f <= 1000.0)
-    T = est_T.H[band]
-    fb = f[band]
+    fb, T = h1_in_band(ref, cl.y_um)
     lvl = 1 / np.sqrt(2)
-    sT = np.linalg.svd(T, compute_uv=False)[:, 0]
-    sE = np.linalg.svd(np.eye(3)[None] - T, compute_uv=False)[:, 0]
+    sT = sigma_in_band(T)
+    sE = sigma_in_band(np.eye(3)[None] - T)
     bE = crossing_hz(fb, sE, lvl, rising=True)
     config = getattr(controller, "config", None)        # None: a controller object without matrices
     if config is not None and config.n_in > config.n_error:
-        est_U = ident.h1_estimate(ref, cl.u_V, fs=FS, nperseg=2048)
-        sS = feedback_sensitivity_sigma(T, est_U.H[band], config, fb)
-        method = "(I + G K_fb)^-1, G = T_yr T_ur^-1 from the reference record (two degrees of freedom)"
+        sS = indirect_sensitivity_sigma(T, h1_in_band(ref, cl.u_V)[1], config, fb)
+        method = SENSITIVITY_INDIRECT
     else:
-        sS, method = sE, ("I - T (one degree of freedom)" if config is not None else
-                          "I - T (a controller object: its reference path is taken as one degree of freedom)")
+        sS, method = sE, (SENSITIVITY_ONE_DOF if config is not None else SENSITIVITY_OBJECT)
     bS = crossing_hz(fb, sS, lvl, rising=True)
     bT = crossing_hz(fb, sT, lvl, rising=False)
     plan = [(axis, sign, hold) for hold in holds_s for axis in axes for sign in (1, -1)]
@@ -190,6 +226,23 @@ def bandwidth(factory: StageFactory, controller, seed=0, duration_s=PRBS_DURATIO
                            bandwidth_reference_error_hz=bE, sensitivity_method=method)
 
 
+def prbs_references(n: int, amplitude_um: float, seed) -> np.ndarray:
+    """Three uncorrelated PRBS of ``amplitude_um`` [um], shape (n, 3), clocked at :data:`PRBS_CLOCK_HZ`."""
+    return ident.prbs_channels(n, PRBS_CLOCK_HZ, fs=FS, n_channels=3, amplitude=amplitude_um, seed=seed)
+
+
+def h1_in_band(inputs, outputs) -> tuple[np.ndarray, np.ndarray]:
+    """MIMO H1 estimate of ``outputs`` per ``inputs`` on :data:`PRBS_BAND_HZ`: ``(f_hz, H)``, H shape (F, ny, nu)."""
+    est = ident.h1_estimate(inputs, outputs, fs=FS, nperseg=2048)
+    band = (est.freq_hz >= PRBS_BAND_HZ[0]) & (est.freq_hz <= PRBS_BAND_HZ[1])
+    return est.freq_hz[band], est.H[band]
+
+
+def sigma_in_band(H) -> np.ndarray:
+    """Largest singular value of each ``H[k]``, shape (F,)."""
+    return np.linalg.svd(H, compute_uv=False)[:, 0]
+
+
 def controller_response(config, f_hz) -> tuple[np.ndarray, np.ndarray]:
     """``(K_e, K_y)`` of ``u = K_e e + K_y y`` on ``f_hz`` [controller V / sensor V], shapes (F, nu, n_error) and
     (F, nu, n_in - n_error) (empty for one degree of freedom).
@@ -200,8 +253,12 @@ def controller_response(config, f_hz) -> tuple[np.ndarray, np.ndarray]:
     return Kz[:, :, :config.n_error], Kz[:, :, config.n_error:]
 
 
-def feedback_sensitivity_sigma(T_yr, T_ur, config, f_hz) -> np.ndarray:
+def indirect_sensitivity_sigma(T_yr, T_ur, config, f_hz) -> np.ndarray:
     """``sigma_max((I + G K_fb)^-1)`` on ``f_hz`` from the closed-loop responses to the reference.
+
+    The indirect closed-loop method (:data:`SENSITIVITY_INDIRECT`): no record beyond the reference one, but
+    it needs the controller's matrices; :func:`nanosim.pipeline.compare.reading_disturbance_sensitivity`
+    measures the same ``S`` directly, for any controller, with a record of its own.
 
     Parameters
     ----------
@@ -224,7 +281,7 @@ def feedback_sensitivity_sigma(T_yr, T_ur, config, f_hz) -> np.ndarray:
     G_V = np.linalg.solve(np.swapaxes(T_ur, 1, 2), np.swapaxes(T_yr, 1, 2)).swapaxes(1, 2) / UM_PER_V
     ny = G_V.shape[1]
     S = np.linalg.inv(np.eye(ny)[None] + G_V @ K_fb)
-    return np.linalg.svd(S, compute_uv=False)[:, 0]
+    return sigma_in_band(S)
 
 
 def predicted_loop(controller: DiscreteController, base, f_hz=None):
@@ -251,7 +308,8 @@ def predicted_loop(controller: DiscreteController, base, f_hz=None):
 def _metrics(r: BandwidthResult) -> dict:
     axis, sign, hold = HEADLINE_STEP
     return {"bandwidth_S_hz": r.bandwidth_S_hz, "bandwidth_T_hz": r.bandwidth_T_hz,
-            "bandwidth_reference_error_hz": r.bandwidth_reference_error_hz, "sensitivity_method": r.sensitivity_method,
+            "bandwidth_reference_error_hz": r.bandwidth_reference_error_hz,
+            "sensitivity_method": r.sensitivity_method.describe(), "sensitivity_formula": r.sensitivity_method.formula,
             "step_2um": {"rise_ms": r.rise_ms, "peak_ms": r.peak_ms, "settling_ms": r.settling_ms,
                          "overshoot_percent": r.overshoot_percent,
                          "case": f"{'+' if sign > 0 else '-'}{'XYZ'[axis]} after {hold:g} s"},

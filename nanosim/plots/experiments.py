@@ -121,10 +121,15 @@ def fig_small_steps(r):
 
 
 def fig_bandwidth(r, predicted=None):
-    """Paper Fig. 18: measured sigma(S), sigma(T) (with the prediction) and the 2 um step."""
+    """Paper Fig. 18: measured sigma(S), sigma(T) (with the prediction) and the 2 um step.
+
+    The measured S curve's legend names ``r.sensitivity_method.formula`` (``I - T`` or the feedback loop's
+    ``(I + G K_fb)^-1``, :class:`nanosim.experiments.bandwidth.SensitivityMethod`).
+    """
     fig, ax = subplots(1, 3, figsize=(14, 4.2))
-    method = getattr(r, "sensitivity_method", "I - T").split(",")[0].split(" (")[0]
-    ax[0].semilogx(r.freq_hz, 20 * np.log10(r.sigma_S), label=f"measured on the stage: {method}")
+    method = getattr(r, "sensitivity_method", None)      # a SensitivityMethod; absent: I - T
+    formula = getattr(method, "formula", "I - T")
+    ax[0].semilogx(r.freq_hz, 20 * np.log10(r.sigma_S), label=f"measured on the stage: {formula}")
     ax[1].semilogx(r.freq_hz, 20 * np.log10(r.sigma_T), label="measured on the stage (H1)")
     if predicted is not None:
         f, sS, sT = predicted
