@@ -22,7 +22,7 @@ def test_html_marks_a_failed_criterion_without_markdown_asterisks(tmp_path):
     md, html = write_report(tmp_path)
     page, text = html.read_text(), md.read_text()
     assert "**NO**" not in page and "**NO**" in text
-    failed = _rows(page, "S bandwidth, reference to error (measured)")
+    failed = _rows(page, "S bandwidth from the reference record (measured)")
     assert failed and all("class='no'" in r and "<td>NO</td>" in r for r in failed)
 
 

@@ -504,9 +504,10 @@ def _controllers_blocks(run: Path, des: dict) -> list:
         out += [("p", "Acceptance against the bench specification (nanosim/pipeline/scorecard.py, ACCEPTANCE: the "
                       "paper's measured figures, a multiloop disk margin with the loop's delay and mu over the "
                       f"uncertainty set), this run: {n_ok} of {n_meas} "
-                      "measured criteria met. The feedback loop's own S bandwidth (a PRBS at the reading) is measured "
-                      "by `nanosim compare` only. Its targets are the paper's measured figures (the bench asks a "
-                      "controller to do as well as the paper's, e.g. a contour error below the paper's 40 nm); the "
+                      "measured criteria met. The feedback loop's S bandwidth measured directly (a PRBS at the "
+                      "reading) is measured by `nanosim compare` only. Its targets are the paper's measured figures "
+                      "(the bench asks a controller to do as well as the paper's, e.g. a contour error below the "
+                      "paper's 40 nm); the "
                       "bands of the paper-vs-simulation table and of the Monte Carlo's default spec are one source "
                       "(nanosim.paper.BANDS), the tolerance of the reproduction around those figures (e.g. below "
                       "100 nm), which is wider."),

@@ -88,7 +88,9 @@ class Metric:
 
 
 METRICS: tuple[Metric, ...] = (
-    Metric("bandwidth_S_hz", "S bandwidth, reference to error (measured)", "Hz", True, PAPER["bwS"]),
+    # the bandwidth experiment's S (I - T, or the feedback loop's by the indirect method for two degrees of
+    # freedom) and nanosim compare's direct measurement of the feedback loop's S (nanosim.pipeline.compare)
+    Metric("bandwidth_S_hz", "S bandwidth from the reference record (measured)", "Hz", True, PAPER["bwS"]),
     Metric("bandwidth_S_feedback_hz", "S bandwidth of the feedback loop (measured, PRBS at the reading)", "Hz",
            True, PAPER["bwS"]),
     Metric("bandwidth_T_hz", "T bandwidth (measured)", "Hz", True),
