@@ -5,7 +5,7 @@ H-infinity design with the paper's weights
 The paper's procedure (Sec. 4): balanced truncation of the identified model to 10 states with its DC
 gain matched, mixed-sensitivity H-infinity synthesis with the weights ``Wp``, ``Wu``, ``Wt`` of the paper,
 and the 4 kHz discretization. The model is identified on the linear twin, as in the identification example.
-``nanosim design --architecture hinf --paper-design`` does the same on a run's ``model.npz``.
+``nanosim design --paper-design`` does the same on a run's ``model.npz``.
 """
 from nanosim import IdentifySettings, design_hinf, discretize_controller, identify_on_twin, reduce_model
 from nanosim.design import paper_weights

@@ -20,7 +20,7 @@ from nanosim.plant.floor import floor_model
 
 
 class PI:
-    """Integral action through the inverse of the nominal static gain (no notch: slow, it must stay below 176 Hz)."""
+    """Integral action through the inverse of the nominal static gain (no notch: slow, below the 174 Hz first mode)."""
 
     M = np.linalg.inv(JACOBIAN_J * STATIC_GAIN_SCALE_UM_PER_V / SENSOR_UM_PER_V)   # sensor V -> controller V
 
