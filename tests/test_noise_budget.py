@@ -76,3 +76,27 @@ def test_resolution_reports_the_budget_with_its_ratios(loop):
     # the sources are independent and nearly linear: their variances add up to the total's, to 25 %
     assert b["budget_sum_over_total"]["open_loop"] == pytest.approx(1.0, abs=0.25)
     assert set(r.budget_psd) == set(SOURCES)
+
+
+def test_an_undithered_dac_does_not_superpose_with_the_drift_and_its_marginal_share_is_measured(loop):
+    # only the drift and the DAC's quantization: the loop's command follows the drift (and the creep after the
+    # approach) through the DAC's codes, and each code step of one LSB (76 uV, 0.4 nm at the table) rings the 175 Hz
+    # pair the 5 Hz loop leaves undamped; the quantizer's error depends on the signal, so variances do not add
+    from dataclasses import replace
+    cfg, factory = loop
+    base = StageConfig()
+    on = replace(base, floor=replace(base.floor, enabled=False),
+                 electronics=replace(base.electronics, dac_noise=False, amplifier_noise=False, sensor_noise=False,
+                                     adc_quantization=False))
+    r = resolution(lambda s: factory(s, on), DiscreteController(cfg), seed=3, duration_s=1.0)
+    src = r.budget["sources"]
+    assert set(src) == {"DAC quantization", "thermal drift"} and r.budget["quantizers_marginal"] == ["DAC quantization"]
+    q, d = src["DAC quantization"], src["thermal drift"]
+    assert "sensor_marginal_nm" not in d                       # a linear source's marginal is its record alone
+    # the loop without the DAC's quantization is the drift alone: the same record, bit for bit
+    assert q["sensor_without_nm"] == d["sensor_nm"] and q["table_without_nm"] == d["table_nm"]
+    total = r.sigma_nm["closed_loop"]
+    assert q["sensor_marginal_nm"] ** 2 == pytest.approx(total ** 2 - d["sensor_nm"] ** 2, rel=1e-12)
+    # not superposed: the sum of the variances alone misses the total's by more than a fifth
+    assert abs(q["sensor_nm"] ** 2 + d["sensor_nm"] ** 2 - total ** 2) > 0.2 * total ** 2
+    assert r.budget["budget_sum_over_total"]["sensor_marginal"] == pytest.approx(1.0, rel=1e-12)

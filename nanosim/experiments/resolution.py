@@ -19,7 +19,13 @@ the low-frequency drift (the legs' thermal expansion). It reports each
 source's sigma, its share of the sum of variances, open and closed loop, and
 each source's PSD. For a linear chain the variances add up to the total (the
 ``budget_sum_over_total`` ratios check it); the quantizers, alone, are not
-dithered and need not add.
+dithered and need not add. Each quantizer's marginal share is measured as well:
+the closed loop with every source on but that one, its variance subtracted from
+the total's. An undithered DAC whose command follows the drift and the creep
+steps through its codes, and each step of one LSB rings the modes the loop
+leaves lightly damped: how often it steps depends on the other sources (alone,
+only the creep after the approach moves it), so its share alone and its
+marginal share differ, either way.
 """
 from __future__ import annotations
 
@@ -35,7 +41,8 @@ from nanosim.plant.floor import FloorConfig
 from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_resolution
 
-__all__ = ["ResolutionResult", "resolution", "noise_sources", "noise_budget", "OPEN_REST_S", "RECORD_S",
+__all__ = ["ResolutionResult", "resolution", "noise_sources", "noise_sources_without", "noise_budget",
+           "QUANTIZERS", "OPEN_REST_S", "RECORD_S",
            "STEADY_HOLD_S", "RESOLUTION_PROTOCOL"]
 
 OPEN_REST_S = 0.3           # at rest from home before the open-loop record [s]
@@ -73,6 +80,31 @@ def _bands(x_nm):
     return float(x_nm.std()), float(np.percentile(dev, 95.45)), float(np.percentile(dev, 99.73))
 
 
+# The electronics switch of each source (the floor is a mechanical input, switched by its own config).
+_SWITCHES = {"DAC electronics": "dac_noise", "DAC quantization": "dac_quantization", "amplifier": "amplifier_noise",
+             "thermal drift": "thermal_drift", "floor vibration": None, "gauge": "sensor_noise",
+             "ADC quantization": "adc_quantization"}
+# The sources that do not superpose: an undithered quantizer's error depends on the signal it quantizes (the DAC's
+# on the command that follows the drift and the creep, stepping through its codes), so alone it is not its share.
+QUANTIZERS = ("DAC quantization", "ADC quantization")
+
+
+def _active_sources(config) -> list:
+    """The sources that are on in ``config`` (with a level above zero), in the order of the chain."""
+    e = config.electronics
+    level = {"DAC electronics": e.dac_noise_V, "amplifier": e.amplifier_noise_V, "thermal drift": e.thermal_drift_K,
+             "floor vibration": config.floor.accel_psd_m2_s4_Hz if config.floor.enabled else 0.0}
+    return [name for name, flag in _SWITCHES.items()
+            if (flag is None or getattr(e, flag)) and level.get(name, 1.0) > 0]
+
+
+def _with_sources(config, on) -> object:
+    """``config`` with exactly the sources in ``on`` switched on (the piezo and the loop unchanged)."""
+    flags = {flag: name in on for name, flag in _SWITCHES.items() if flag is not None}
+    floor = config.floor if "floor vibration" in on else FloorConfig.off()
+    return replace(config, electronics=replace(config.electronics, **flags), floor=floor)
+
+
 def noise_sources(config) -> dict:
     """``{source: StageConfig}`` with only that noise source on.
 
@@ -80,26 +112,13 @@ def noise_sources(config) -> dict:
     ``DAC quantization``, ``amplifier``, ``thermal drift``, ``floor vibration``,
     ``gauge``, ``ADC quantization``. Sources that are off in ``config`` are left out.
     """
-    e = config.electronics
-    silent_e = replace(e, dac_noise=False, amplifier_noise=False, sensor_noise=False, dac_quantization=False,
-                       adc_quantization=False, thermal_drift=False)
-    silent = replace(config, electronics=silent_e, floor=FloorConfig.off())
-    out = {}
-    if e.dac_noise and e.dac_noise_V > 0:
-        out["DAC electronics"] = replace(silent, electronics=replace(silent_e, dac_noise=True))
-    if e.dac_quantization:
-        out["DAC quantization"] = replace(silent, electronics=replace(silent_e, dac_quantization=True))
-    if e.amplifier_noise and e.amplifier_noise_V > 0:
-        out["amplifier"] = replace(silent, electronics=replace(silent_e, amplifier_noise=True))
-    if e.thermal_drift and e.thermal_drift_K > 0:
-        out["thermal drift"] = replace(silent, electronics=replace(silent_e, thermal_drift=True))
-    if config.floor.enabled and config.floor.accel_psd_m2_s4_Hz > 0:
-        out["floor vibration"] = replace(silent, floor=config.floor)
-    if e.sensor_noise:
-        out["gauge"] = replace(silent, electronics=replace(silent_e, sensor_noise=True))
-    if e.adc_quantization:
-        out["ADC quantization"] = replace(silent, electronics=replace(silent_e, adc_quantization=True))
-    return out
+    return {name: _with_sources(config, {name}) for name in _active_sources(config)}
+
+
+def noise_sources_without(config) -> dict:
+    """``{source: StageConfig}`` with every source of ``config`` on except that one (:func:`noise_sources`'s names)."""
+    active = _active_sources(config)
+    return {name: _with_sources(config, set(active) - {name}) for name in active}
 
 
 def _open_record(stage, n: int):
@@ -119,7 +138,7 @@ def _shares(rows: dict, key: str) -> None:
 
 
 def noise_budget(stage, controller, seed=0, duration_s=RECORD_S, axis=0, open_loop=True, spectra=None,
-                 open_seed=None) -> dict:
+                 open_seed=None, total_nm=None) -> dict:
     """Sigma (nm) with one noise source at a time, open loop and closed loop, and each source's share.
 
     ``stage`` must offer ``variant(config, seed)`` (:class:`~nanosim.plant.stage.Stage`,
@@ -129,9 +148,17 @@ def noise_budget(stage, controller, seed=0, duration_s=RECORD_S, axis=0, open_lo
     ``spectra`` receives ``{source: (freq_hz, psd_open, psd_closed)}`` (nm^2/Hz; ``psd_open``
     None without ``open_loop``). The open-loop records use ``open_seed`` (default ``seed``): with the
     seed of a measured total each source draws the very noise it adds there.
+
+    ``total_nm`` (``{"sensor_nm": ..., "table_nm": ...}``, the closed-loop sigmas of the record with
+    every source on and the same ``seed``) adds, for each quantizer (:data:`QUANTIZERS`), its marginal
+    share: the closed loop again with every source on but that one (``sensor_without_nm``,
+    ``table_without_nm``) and ``sensor_marginal_nm = sqrt(total^2 - without^2)`` (0 when negative), the
+    same for the table. A linear source's marginal variance is its variance alone; an undithered
+    quantizer's is not, since its error depends on the signal it quantizes.
     """
     n = int(duration_s * FS)
     rows = {}
+    without = noise_sources_without(stage.config) if total_nm else {}
     for name, cfg in noise_sources(stage.config).items():
         row, po = {}, None
         if open_loop:
@@ -142,6 +169,13 @@ def noise_budget(stage, controller, seed=0, duration_s=RECORD_S, axis=0, open_lo
         cl = run_closed_loop(stage.variant(cfg, seed), controller, np.zeros((n, 3)), protocol=RESOLUTION_PROTOCOL)
         y_closed = cl.y_um[:, axis] * 1e3
         row.update(sensor_nm=float(y_closed.std()), table_nm=float(cl.table_um[:, axis].std() * 1e3))
+        if name in QUANTIZERS and name in without:
+            rest = run_closed_loop(stage.variant(without[name], seed), controller, np.zeros((n, 3)),
+                                   protocol=RESOLUTION_PROTOCOL)
+            for key, sig in (("sensor", float((rest.y_um[:, axis] * 1e3).std())),
+                             ("table", float(rest.table_um[:, axis].std() * 1e3))):
+                row[f"{key}_without_nm"] = sig
+                row[f"{key}_marginal_nm"] = float(np.sqrt(max(total_nm[f"{key}_nm"] ** 2 - sig ** 2, 0.0)))
         rows[name] = row
         if spectra is not None:
             f, pc = _psd(y_closed)
@@ -149,6 +183,11 @@ def noise_budget(stage, controller, seed=0, duration_s=RECORD_S, axis=0, open_lo
     for key in ("open_loop_nm", "sensor_nm", "table_nm") if open_loop else ("sensor_nm", "table_nm"):
         _shares(rows, key)
     return rows
+
+
+def _marginal_sum(rows: dict, key: str) -> float:
+    """The root of the sum of variances with each quantizer's marginal sigma in place of its sigma alone."""
+    return float(np.sqrt(sum(r.get(f"{key}_marginal_nm", r[f"{key}_nm"]) ** 2 for r in rows.values())))
 
 
 def resolution(factory: StageFactory, controller, seed=0, duration_s=RECORD_S, axis=0,
@@ -172,16 +211,21 @@ def resolution(factory: StageFactory, controller, seed=0, duration_s=RECORD_S, a
              "closed_loop": float(cl.table_um[:, axis].std() * 1e3)}
     bud, spectra = {}, {}
     if budget and hasattr(stc, "variant"):
+        ref = {"open_loop_nm": so, "sensor_nm": sc, "table_nm": table["closed_loop"]}
         rows = noise_budget(stc, controller, seed=stream_seed(seed, "resolution", 1), duration_s=duration_s,
-                            axis=axis, spectra=spectra, open_seed=stream_seed(seed, "resolution", 0))
+                            axis=axis, spectra=spectra, open_seed=stream_seed(seed, "resolution", 0),
+                            total_nm={"sensor_nm": sc, "table_nm": ref["table_nm"]})
         tot = {k: float(np.sqrt(sum(r[k] ** 2 for r in rows.values())))
                for k in ("open_loop_nm", "sensor_nm", "table_nm")}
-        ref = {"open_loop_nm": so, "sensor_nm": sc, "table_nm": table["closed_loop"]}
+        ratio = (lambda x, k: x / ref[k] if ref[k] else 0.0)
         bud = {"sources": rows, "record_s": float(duration_s), "axis": "XYZ"[axis],
                "open_loop_rest_s": OPEN_REST_S, "closed_loop_protocol": RESOLUTION_PROTOCOL.describe(),
-               "budget_sum_over_total": {"open_loop": tot["open_loop_nm"] / so if so else 0.0,
-                                         "sensor": tot["sensor_nm"] / sc if sc else 0.0,
-                                         "table": tot["table_nm"] / ref["table_nm"] if ref["table_nm"] else 0.0}}
+               "quantizers_marginal": [q for q in QUANTIZERS if q in rows],
+               "budget_sum_over_total": {"open_loop": ratio(tot["open_loop_nm"], "open_loop_nm"),
+                                         "sensor": ratio(tot["sensor_nm"], "sensor_nm"),
+                                         "table": ratio(tot["table_nm"], "table_nm"),
+                                         "sensor_marginal": ratio(_marginal_sum(rows, "sensor"), "sensor_nm"),
+                                         "table_marginal": ratio(_marginal_sum(rows, "table"), "table_nm")}}
     return ResolutionResult(open_y_nm=y_open, closed_y_nm=y_closed,
                             sigma_nm={"open_loop": so, "closed_loop": sc},
                             band2_nm={"open_loop": so2, "closed_loop": sc2},

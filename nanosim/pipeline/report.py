@@ -476,7 +476,21 @@ def noise_budget_blocks(met: dict) -> list:
                   f"{_fmt(ratio.get('sensor'))} (closed loop, reading) and {_fmt(ratio.get('table'))} (closed loop, "
                   "table). The figure's third row shows each source's PSD."),
             ("table", ["source", "open loop (nm)", "share (%)", "closed loop, reading (nm)", "share (%)",
-                       "closed loop, table (nm)", "share (%)"], rows, None)]
+                       "closed loop, table (nm)", "share (%)"], rows, None)] + _quantizer_blocks(src, ratio)
+
+
+def _quantizer_blocks(src: dict, ratio: dict) -> list:
+    """The quantizers' marginal shares (every other source on), when the budget has them."""
+    marg = [(name, r) for name, r in src.items() if _num(r.get("sensor_marginal_nm"))]
+    if not marg:
+        return []
+    parts = [f"{name} {_fmt(r['sensor_marginal_nm'])} nm of the reading and {_fmt(r.get('table_marginal_nm'))} nm "
+             f"of the table (the loop without it: {_fmt(r.get('sensor_without_nm'))} nm)" for name, r in marg]
+    return [("p", "An undithered quantizer's error follows the signal it quantizes, so its record alone is not its "
+                  "share. Measured with every other source on (the total's variance less the variance without it): "
+                  + "; ".join(parts) + ". With these in place of their values alone the sums over the measured "
+                  f"totals are {_fmt(ratio.get('sensor_marginal'))} (reading) and "
+                  f"{_fmt(ratio.get('table_marginal'))} (table).")]
 
 
 def _stage_seconds(run: Path) -> dict:
