@@ -199,9 +199,11 @@ DEFAULT_DAMPING_LOWPASS_HZ = 400.0
 
 # --- the identification's default excitation ---------------------------------
 # PRBS band edges [Hz], 1 s each: the paper's 50, 100 and 200 Hz, and a 1 kHz band (chip clock 2 kHz)
-# that puts power at the stage's top mode. With the paper's bands only, 740 Hz sits 22 dB under the
-# 200 Hz band's level (sinc^2 near its 800 Hz null) and the identified model has no 738 Hz mode
-# (README, "Identification").
+# that puts power at the stage's top mode below 1 kHz, the sixth (the table's twist; the paper's 740 Hz,
+# from its Tustin-warped model). A PRBS held P samples has the spectrum sinc^2(f P / fs): with the paper's
+# bands only, the 200 Hz band (P = 10, chip clock 400 Hz) puts that weakly observable mode some 16 dB
+# under its low-frequency level, on the way to its 800 Hz null; the 1 kHz band (P = 2) under 2 dB
+# (tests/test_identify_stage.py).
 DEFAULT_PRBS_BANDS_HZ = (50.0, 100.0, 200.0, 1000.0)
 
 # --- names -------------------------------------------------------------------

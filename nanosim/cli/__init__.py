@@ -1,4 +1,5 @@
-"""``nanosim`` command line: modes, identify, design, characterize, pipeline, report, montecarlo, sweep, budget, view.
+"""``nanosim`` command line: modes, identify, design, characterize, pipeline, report, ablation, montecarlo,
+sweep, compare, scan, budget, view.
 
 argparse -> config dataclasses (:mod:`nanosim.pipeline.config`, the only home
 of defaults) -> pipeline steps. Every user error prints one line and exits 2. The parser and
@@ -51,7 +52,7 @@ def _add_design_arguments(parser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``nanosim`` argument parser (one-line usage errors, exit 2)."""
-    from nanosim.design.architectures import BENCH
+    from nanosim.design.architectures import DESIGN_RULES
     from nanosim.pipeline.montecarlo import MAX_SAMPLES
     from nanosim.pipeline.seeds import MAX_SEEDS
     from nanosim.pipeline.sweep import param_names          # the names parse_param accepts
@@ -59,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     mc_default = MonteCarloConfig()
 
-    p = _OneLineParser(prog="nanosim", description=__doc__.splitlines()[0])
+    p = _OneLineParser(prog="nanosim", description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--version", action="version", version=f"nanosim {__version__}")
     out = _out_folder("--out")
     sub = p.add_subparsers(dest="command", required=True)
@@ -90,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "columns share re-estimated jointly, one pole per mode)")
     i.add_argument("--paper-bands", action="store_true",
                    help="PRBS in the paper's 50/100/200 Hz bands only (default: also a 1 kHz band, which "
-                        "excites the 740 Hz mode)")
+                        "excites the stage's sixth mode; paper: 740 Hz)")
     i.add_argument("--mjcf", default=None, type=_file)
     i.set_defaults(func=_cmd_identify)
     d = sub.add_parser("design", help="reduce the model and synthesize the controller (default: the four-block "
@@ -110,8 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--seed", type=_int_at_least(0), default=0, help=seed_help)
     c.add_argument("--mjcf", default=None, type=_file)
     c.add_argument("--feedforward", default=None, choices=("inverse-pi",),
-                   help="hysteresis compensation: the inverse Prandtl-Ishlinskii operator of the piezo, open loop "
-                        "(hysteresis) and behind the controller (hysteresis, tracking, contouring)")
+                   help="hysteresis compensation: the inverse of a Prandtl-Ishlinskii operator fitted to the "
+                        "stage's piezo, open loop (hysteresis) and behind the controller (hysteresis, tracking, "
+                        "contouring)")
     c.add_argument("--drive", default="voltage", choices=("voltage", "charge"),
                    help="piezo amplifier of every experiment: voltage (the bench's) or a charge amplifier "
                         "(hysteresis reduced above its 0.1 Hz crossover, voltage drive below it)")
@@ -173,8 +175,9 @@ def build_parser() -> argparse.ArgumentParser:
     cp = sub.add_parser("compare", help="controllers through the Section 5 suite and the robustness analysis, "
                                         "scored (scorecard.md/.html/.json)")
     cp.add_argument("--controllers", nargs="+", required=True, metavar="CTRL",
-                    help=f"bench names ({', '.join(BENCH)}), .npz/.mat state spaces (A, B, C, D, dt) or "
-                         "module:function returning a controller object")
+                    help=f"named designs ({', '.join(DESIGN_RULES)}), .npz/.mat state spaces (A, B, C, D, dt), "
+                         "or module:function / path/to/file.py:function returning a controller object, a "
+                         "DiscreteController/ControllerConfig or a discrete StateSpace")
     compare_seeds = _field_default(CompareConfig, "seeds")
     cp.add_argument("--seeds", type=_seeds(sort=True), default=compare_seeds,
                     help=f"seeds, a range like 0-4 or a list (default {','.join(map(str, compare_seeds))}; "

@@ -3,9 +3,10 @@
 Two degrees of freedom
 ----------------------
 A mixed-sensitivity S/KS/T design inverts the plant: its controller has
-zeros on the lightly damped plant poles (176/178 Hz, zeta ~ 0.004), so the
-closed loop keeps them with their open-loop damping. Any input disturbance
-there (the piezo's hysteresis, DAC noise) then rings for ``1/(zeta w)`` ~ 0.25 s.
+zeros on the lightly damped plant poles (the first XY pair, about 175 Hz, damping
+ratio a few thousandths), so the closed loop keeps them with their open-loop damping.
+Any input disturbance there (the piezo's hysteresis, DAC noise) then rings for
+``1/(zeta w)``, a few tenths of a second.
 With a damping loop the loop is ``u = K e + Ky y``: ``Ky`` is a band-limited
 velocity feedback (:func:`damping_loop`) closed first, ``Gd = (I - G Ky)^-1 G``
 (:func:`damped_plant`), and ``K`` is the H-infinity controller for ``Gd`` with

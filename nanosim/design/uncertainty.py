@@ -1,13 +1,19 @@
 """The stage's uncertainty set, perturbed plants and robust stability by mu.
 
-Uncertainty set: piezo gain per input channel 0.75 ... 1.0 of nominal (the
-hysteresis slope after a reversal is about 0.75 of the nominal slope), every modal
+Uncertainty set: piezo gain per input channel 0.75 ... 1.0 of nominal, every modal
 frequency +-3 %, every modal damping x0.5 ... x2, and 0 ... 1 sample of computation delay
 beyond the loop as run (whose own delays are in the plant).  :data:`STAGE_UNCERTAINTY`
 holds it; :func:`robust_stability_mu` covers it by complex blocks and brute-forces its
-vertices; :func:`perturbed_plant` builds one member. The gains are factors on the nominal (major-loop secant)
-slope: a plant holding another slope maps them (:meth:`UncertaintySet.input_gain_range_about`; an identified model
-holds the slope after a reversal, so on it the set spans 1.02-1.36 x its gain).
+vertices; :func:`perturbed_plant` builds one member.
+
+The gains are factors on the nominal slope, the secant of the Fig. 14 major loop's rising branch
+(:mod:`nanosim.plant.piezo` normalises it to 1), the average slope of a monotone move of that size. The low
+end is about the gain the identification's PRBS sees in its small minor loops,
+:data:`~nanosim.design.loopplant.IDENTIFIED_INPUT_GAIN_OF_NOMINAL`: the slope after a reversal, raised by the
+thermally activated operators that follow within the PRBS's periods. The athermal tangent right after a
+reversal, :meth:`~nanosim.plant.piezo.PiezoConfig.small_signal_gain` (``w0``), lies below the range. A plant
+holding another slope maps the gains (:meth:`UncertaintySet.input_gain_range_about`): on an identified model
+the set spans ``input_gain_range / IDENTIFIED_INPUT_GAIN_OF_NOMINAL`` x its gain.
 Loop conventions: :mod:`~nanosim.design.loopresponse`.
 """
 from __future__ import annotations
@@ -52,8 +58,9 @@ class UncertaintySet:
     ----------
     input_gain_range : (float, float)
         Gain per input channel (piezo small-signal slope), factor on the nominal (major-loop secant)
-        slope. A plant whose piezo sits elsewhere (the identified model holds the post-reversal slope)
-        maps it by :meth:`input_gain_range_about`.
+        slope. A plant whose piezo sits elsewhere (an identified model holds
+        :data:`~nanosim.design.loopplant.IDENTIFIED_INPUT_GAIN_OF_NOMINAL` x nominal) maps it by
+        :meth:`input_gain_range_about`.
     freq_scale_range : (float, float)
         Factor on every modal natural frequency.
     damping_scale_range : (float, float)
@@ -92,9 +99,10 @@ class UncertaintySet:
     def to_dict(self) -> dict:
         """JSON-ready description (units in the keys)."""
         out = {k if k == "extra_delay_samples_range" else f"{k}_factor": list(v) for k, v in asdict(self).items()}
-        out["meaning"] = ("piezo gain per input channel as a factor on nominal, the major-loop secant (hysteresis "
-                          "slope after a reversal ~0.75 of nominal; each plant's analysis maps it onto the slope that "
-                          "plant holds), "
+        out["meaning"] = ("piezo gain per input channel as a factor on nominal, the major-loop secant (the low "
+                          "end about the slope the identification's PRBS sees, IDENTIFIED_INPUT_GAIN_OF_NOMINAL; the "
+                          "tangent right after a reversal, PiezoConfig.small_signal_gain, lies below; each plant's "
+                          "analysis maps it onto the slope that plant holds), "
                           "every structural mode's frequency and damping ratio scaled (pairs with zeta < 0.3 up to "
                           "1 kHz, real poles), computation delay beyond the loop as run")
         return out
@@ -106,7 +114,8 @@ STAGE_UNCERTAINTY = UncertaintySet()
 # slope: their defaults (an identified model maps the gains, UncertaintySet.mu_kwargs)
 STAGE_MU_RANGES = STAGE_UNCERTAINTY.mu_kwargs(0)
 # Complex poles damped more than this, or above this frequency, are not the stage's structural modes
-# (176-738 Hz; filters, creep fits): the uncertainty set leaves them alone.
+# (the six below 1 kHz, from the first XY pair at about 175 Hz to the twist, the paper's 740 Hz; filters, creep
+# fits): the uncertainty set leaves them alone.
 MODE_ZETA_MAX = 0.3
 MODE_MAX_HZ = 1000.0
 
@@ -361,7 +370,7 @@ def robust_stability_mu(G_nominal, K, Ky, dt, freq_hz, *,
     """Robust stability of ``u = K e + Ky y`` for the stage's parametric uncertainty.
 
     Uncertainty set: piezo gain per input channel in
-    ``input_gain_range`` (hysteresis slope after a reversal ~0.75 of nominal), every
+    ``input_gain_range`` (factors on the nominal, major-loop secant slope; see the module docstring), every
     modal frequency scaled within ``freq_scale_range`` (+-3 %), every modal damping
     scaled within ``damping_scale_range`` (x0.5 ... x2), computation delay of
     ``delay_samples_range`` samples (integers).

@@ -5,7 +5,7 @@ The bench repeats the move: at each speed the path (out and back) runs
 from the :class:`~nanosim.experiments.loop.LoopProtocol` start, so the record
 starts from the state the repeated path leaves the piezo in. The paper runs
 the same move at speeds from 10 to 1000 um/s on one stage (Sec. 5, Fig. 20):
-its actuators have run the path before any one record. The Prandtl-Ishlinskii operators remember their
+its actuators have run the path before any one record. The piezo's play operators remember their
 turning points (return-point memory). On the first cycle after the approach
 from home (every actuator driven up), the actuators that keep going up ride
 their initial loading curve, whose slope grows with the voltage (and, after
@@ -119,8 +119,8 @@ def contouring(factory: StageFactory, controller, seed=0,
     At each speed, on a fresh stage (stream ``stream_seed(seed, "contouring")``), the path runs
     :func:`conditioning_cycles` times back to back, then once more: that last cycle is the record.
     ``conditioning_s = 0`` still runs one cycle before the record.
-    ``feedforward="inverse-pi"``: the controller's command passes the inverse of the piezo's
-    Prandtl-Ishlinskii operator fitted on the stage
+    ``feedforward="inverse-pi"``: the controller's command passes the inverse of a
+    Prandtl-Ishlinskii operator fitted to the stage's piezo
     (:func:`~nanosim.experiments.loop.fit_feedforward`, :func:`~nanosim.experiments.loop.compensate`).
     """
     ffm = resolve_feedforward(factory, seed, feedforward)

@@ -61,8 +61,8 @@ def hysteresis(factory: StageFactory, controller, seed=0, duration_s=2.0, travel
                dwell_s=0.12, feedforward: str | None = None) -> HysteresisResult:
     """Open-loop loop on actuator A (0 -> 1.65 -> 0 V) and the closed-loop 20 um triangle and staircase.
 
-    ``feedforward="inverse-pi"`` pre-distorts the open-loop command through the inverse of the
-    piezo's Prandtl-Ishlinskii operator identified on the stage beforehand
+    ``feedforward="inverse-pi"`` pre-distorts the open-loop command through the inverse of a
+    Prandtl-Ishlinskii operator fitted to the stage's piezo beforehand
     (:func:`~nanosim.experiments.loop.fit_feedforward`) and puts the same inverse behind the controller
     (:func:`~nanosim.experiments.loop.compensate`); the loop width is measured against the undistorted command.
     """

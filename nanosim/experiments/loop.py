@@ -208,7 +208,7 @@ def _fit_command(points=FIT_TURNING_POINTS_V, rate_V_per_s: float = FIT_RATE_V_P
 
 
 def fit_feedforward(factory, seed: int = 0) -> PIModel:
-    """The piezo's Prandtl-Ishlinskii operator identified on the stage (the inverse-PI feedforward's model).
+    """A Prandtl-Ishlinskii operator fitted to the stage's piezo (the inverse-PI feedforward's model).
 
     Each actuator alone, from rest on a fresh stage (stream ``stream_seed(seed, "feedforward.fit", j)``),
     runs the nested minor loops of :data:`FIT_TURNING_POINTS_V` open loop. Its reading is projected on

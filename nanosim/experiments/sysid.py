@@ -1,7 +1,7 @@
 """Identify the stage from data, as the paper does (Sec. 3).
 
 One experiment per actuator (step + PRBS in the paper's 50/100/200 Hz bands
-and, beyond the paper, a 1 kHz band for the 740 Hz mode; at most 0.5
+and, beyond the paper, a 1 kHz band for the sixth mode (paper: 740 Hz); at most 0.5
 controller volts, 4 kHz), a 3x1 discrete model per column by subspace
 identification, the 3x3 model assembled block-diagonally (39 states for
 13 per column), continuous time by the inverse Tustin transform. Fit factors

@@ -46,8 +46,8 @@ def tracking(factory: StageFactory, controller, seed=0, freqs_hz=(5, 10, 20, 40)
              periods=3, axis=0, feedforward: str | None = None) -> list:
     """Triangles and sines of ``amplitude_um`` at each frequency, through the command interpolation.
 
-    ``feedforward="inverse-pi"``: the controller's command passes the inverse of the piezo's
-    Prandtl-Ishlinskii operator fitted on the stage
+    ``feedforward="inverse-pi"``: the controller's command passes the inverse of a
+    Prandtl-Ishlinskii operator fitted to the stage's piezo
     (:func:`~nanosim.experiments.loop.fit_feedforward`, :func:`~nanosim.experiments.loop.compensate`).
     """
     ffm = resolve_feedforward(factory, seed, feedforward)

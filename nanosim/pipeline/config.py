@@ -52,7 +52,8 @@ class IdentifyConfig:
         False keeps each column's own estimate, as the paper.
     bands_hz : tuple of float
         PRBS band edges [Hz], one 1 s segment each, every edge in (0, 2000]: the paper's 50, 100 and
-        200 Hz and a 1 kHz band for the 740 Hz mode (default); ``PAPER_PRBS_BANDS_HZ`` is the paper's.
+        200 Hz and a 1 kHz band for the stage's sixth mode, the twist (paper: 740 Hz) (default);
+        ``PAPER_PRBS_BANDS_HZ`` is the paper's.
     """
 
     seed: int = 0
@@ -161,8 +162,8 @@ class CharacterizeConfig:
     workers : int or None
         Threads for the independent experiments (default: up to 2).
     feedforward : str or None
-        Hysteresis compensation (``"inverse-pi"``: the inverse Prandtl-Ishlinskii operator of the
-        stage's piezo, open loop in the hysteresis experiment and behind the controller in the
+        Hysteresis compensation (``"inverse-pi"``: the inverse of a Prandtl-Ishlinskii operator fitted
+        to the stage's piezo, open loop in the hysteresis experiment and behind the controller in the
         hysteresis, tracking and contouring loops); None: none.
     drive : {"voltage", "charge"}
         The piezo amplifier of every experiment: the bench's voltage amplifier, or a charge amplifier

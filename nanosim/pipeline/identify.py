@@ -1,7 +1,7 @@
 """Identify the stage from data, as the paper does (Sec. 3).
 
 One experiment per actuator (step + PRBS in the paper's 50/100/200 Hz bands
-and a 1 kHz band for the 740 Hz mode, ``IdentifyConfig.bands_hz``; at most
+and a 1 kHz band for the sixth mode, the paper's 740 Hz: ``IdentifyConfig.bands_hz``; at most
 0.5 controller volts, 4 kHz), a 3x1 discrete model per column by subspace
 identification, the 3x3 model assembled block-diagonally (39 states for
 13 per column), continuous time by the inverse Tustin transform. Fit factors

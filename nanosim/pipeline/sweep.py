@@ -358,7 +358,8 @@ def _fmt(v) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
-_RULE_NOTE = {"lqg": ", the bench's default: the robust lqg with the least predicted noise",
+_RULE_NOTE = {"hinf": ", the exported default: the four-block H-infinity design",
+              "lqg": ": the robust lqg, the member with the least predicted noise that passes every check",
               "lqg-bandwidth": ": the robust lqg at the smallest control weight at which its pick meets every check, "
                                "so the bandwidth is the stage's and the checks', not fixed by the weights",
               "lqg-gain-range": ": the robust lqg with its disk margin over the piezo's gain range",

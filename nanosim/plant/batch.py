@@ -10,7 +10,7 @@ of the current position, as ``stage.sensors.step(stage.table_um)``) and
 
 The electronics (:mod:`nanosim.plant.batch_electronics`) apply every effect
 of the bench (DAC quantisation and noise, amplifier saturation,
-Prandtl-Ishlinskii hysteresis, creep, gauge noise and clipping, ADC) to all
+the piezo's hysteresis and creep (:mod:`nanosim.plant.piezo`), gauge noise and clipping, ADC) to all
 ``3 B`` channels at once, from the same config objects as the single stage.
 
 Equality with the single-stage path (``tests/test_batch.py``): every member

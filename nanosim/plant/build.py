@@ -78,7 +78,7 @@ class DampingSpec:
 
     hinge_loss_factor: float = 4.80e-3     # fitted: nanosim.plant.calibrate.fit_damping
     piezo_loss_factor: float = 0.0494      # fitted: nanosim.plant.calibrate.fit_damping
-    reference_frequency_Hz: float = 350.0  # about the geometric mean of the 175-740 Hz band
+    reference_frequency_Hz: float = 350.0  # about the geometric mean of the modes below 1 kHz (about 175-670 Hz)
 
     def beta_s(self, loss_factor: float) -> float:
         """Stiffness-proportional damping coefficient (s) for a loss factor."""

@@ -9,9 +9,9 @@ Nanopositioning Systems*, Springer 2014, Ch. 8-9) in decoupled coordinates
     I_i   = k_i / (s + w_l) * w_lp^2 / (s^2 + 1.4 w_lp s + w_lp^2)
 
 ``w_i`` is the identified mode with the largest peak in the decoupled axis ``i`` (X, Y:
-the 176-178 Hz pair; Z: 244 Hz). The PPF filter is DC-blocked (``w_hp`` = 10 Hz) so that a
-constant reading does not leak into the command (``Ky(z = 1) = 0``). The reference never
-passes through the damping loop.
+the first XY pair, about 175 Hz; Z: the first Z mode, about 245 Hz). The PPF filter is
+DC-blocked (``w_hp`` = 10 Hz) so that a constant reading does not leak into the command
+(``Ky(z = 1) = 0``). The reference never passes through the damping loop.
 
 Tuning rule: the largest integral gain ``k_i`` with a loop-at-a-time disk margin of at
 least 0.5 for the whole loop (feedback operator ``I - PPF``, identified model with the

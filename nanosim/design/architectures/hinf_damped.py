@@ -1,4 +1,5 @@
-"""(b) hinf-damped: H-infinity with the paper's weights around an inner damping loop (the pipeline default).
+"""(b) hinf-damped: H-infinity with the paper's weights around an inner damping loop (a bench member; the
+exported default is ``hinf``, :mod:`.hinf_fourblock`).
 
 Tuning rule (README "Controller"): DC-matched balanced truncation to 14 states; an inner
 band-limited velocity feedback ``Ky`` adding ``zeta = 0.1`` to the first lightly damped

@@ -27,9 +27,9 @@ optimum damps the pair instead::
 * ``wb`` -- the hysteresis error follows the command, and the loop's command follows the
   reference through ``T``: its content falls above the closed loop's complementary-sensitivity
   bandwidth, the paper's 59 Hz (:data:`DISTURBANCE_BANDWIDTH_HZ`; ``PAPER["bwT"]``). At the first
-  pair (~176 Hz) the weight is a third of its low-frequency level, enough for the optimum to damp
-  the pair; at the 450-470 Hz pair, where ``Wt`` is about 20 and no loop of this bandwidth can damp,
-  an eighth. (``disturbance_bandwidth_hz=None``: flat up to ``LP_N``. The weighted ``Wt S G Wd``
+  XY pair (about 175 Hz) the weight is a third of its low-frequency level, enough for the optimum to damp
+  the pair; at the second XY pair (about 450 Hz), where ``Wt`` is about 20 and no loop of this bandwidth
+  can damp, an eighth. (``disturbance_bandwidth_hz=None``: flat up to ``LP_N``. The weighted ``Wt S G Wd``
   at the higher modes then dominates gamma, every block is relaxed by as much, and ``S`` keeps
   a low-frequency shoulder that slows the step's last 2 %.)
 * ``n_in / r_ref`` -- the broadband floor: the input-referred noise per sample of the DAC and
@@ -49,7 +49,7 @@ record-row model). ``delay_samples = d > 0`` adds the Tustin image of ``z^-d`` t
 generalized plant.
 
 Procedure: the identified discrete model -> continuous by inverse Tustin -> DC-matched balanced
-truncation to :data:`REDUCED_ORDER` states (the paper's reduction, keeping the 450-470 Hz pair) -> four-block synthesis
+truncation to :data:`REDUCED_ORDER` states (the paper's reduction, keeping the second XY pair) -> four-block synthesis
 (gamma by bisection on slycot ``sb10ad`` at fixed gamma, every candidate verified on a
 frequency grid: a stabilizing controller whose weighted closed loop stays below ``gamma``;
 then :data:`GAMMA_MARGIN` above the smallest such gamma, where the central controller is
@@ -101,9 +101,9 @@ __all__ = ["design_hinf_fourblock", "fourblock_plant", "disturbance_weight", "sy
            "input_noise_V", "TUNING_RULE", "REDUCED_ORDER", "HYSTERESIS_FRACTION", "REFERENCE_STEP_UM",
            "GAMMA_MARGIN", "RESONANT_PEAK", "DISTURBANCE_BANDWIDTH_HZ", "BANDWIDTH_MARGIN"]
 
-# states of the design model: the balanced truncation keeps the 450-470 Hz XY pair (the paper's 10 states and the
-# pipeline's 14 truncate it; the four-block loop's phase reaches it, and a design blind to it can take its disk
-# margin away on an identified model whose pair sits a little differently)
+# states of the design model: the balanced truncation keeps the second XY pair, about 450 Hz (the paper's 10
+# states and the pipeline's 14 truncate it; the four-block loop's phase reaches it, and a design blind to it can
+# take its disk margin away on an identified model whose pair sits a little differently)
 REDUCED_ORDER = 22
 # hysteresis loop width as a fraction of the stroke: the paper's Fig. 14 open-loop loop (15 % / 14 %), the larger
 HYSTERESIS_FRACTION = 0.15

@@ -9,8 +9,8 @@ accept. The names of the rules' and the controller's constants are re-exported h
 
 Tuning rules
 ------------
-Robust rule (the exported default, :meth:`LqgRule.robust`). The identified model holds the piezo's slope
-after a reversal, the low end of the uncertainty set's gain range
+Robust rule (the default rule, :meth:`LqgRule.robust`; bench member ``lqg``). The identified model holds the
+piezo's gain in the identification's small minor loops, about the low end of the uncertainty set's gain range
 (:data:`~nanosim.design.robustness.IDENTIFIED_INPUT_GAIN_OF_NOMINAL`); a monotone move (a step, a ramp) runs
 at up to the nominal slope, the top of the range, which the linear twin holds. So the design model's piezo
 gain is placed inside the range (:func:`design_input_gains`, fractions :data:`ROBUST_GAIN_FRACTIONS` of the
@@ -160,7 +160,7 @@ def design_lqg(G, rule: LqgRule | None = None, *, dt: float = DT_S,
     G : control.StateSpace
         Identified plant (discrete at ``dt``, or continuous: Tustin), 3 x 3.
     rule : LqgRule or None
-        The tuning rule, a value: :meth:`LqgRule.robust` (None, the exported default),
+        The tuning rule, a value: :meth:`LqgRule.robust` (None, the default),
         :meth:`LqgRule.nominal`, :meth:`LqgRule.gain_range`, :meth:`LqgRule.bandwidth` or a variant
         (``dataclasses.replace``).
     dt : float

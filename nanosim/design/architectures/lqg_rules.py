@@ -4,7 +4,7 @@ A rule says which LQG members (:func:`~nanosim.design.architectures.lqg_synthesi
 designed and which checks pick one of them; :func:`~nanosim.design.architectures.lqg.design_lqg` runs it.
 The presets are the bench's four LQG designs:
 
-* :meth:`LqgRule.robust` (``lqg``, the exported default): robust over the uncertainty set;
+* :meth:`LqgRule.robust` (``lqg``, the default rule of ``design_lqg``): robust over the uncertainty set;
 * :meth:`LqgRule.nominal` (``lqg-nominal``): the identified modes and gain, the disk margin only;
 * :meth:`LqgRule.gain_range` (``lqg-gain-range``): the robust rule with its disk margin at both ends of the
   set's piezo-gain range, designed at its top;
@@ -172,7 +172,7 @@ class LqgRule:
     # ---------------------------------------------------------------- the bench's presets
     @classmethod
     def robust(cls) -> "LqgRule":
-        """The robust rule (``lqg``, the exported default): the ladder over design-model mode scales,
+        """The robust rule (``lqg``, the default rule of ``design_lqg``): the ladder over design-model mode scales,
         inflations and piezo gains inside the set, the least-noise member with the disk margin, stable at
         every vertex and mixed mu < 1 over the set.
         """

@@ -38,7 +38,8 @@ with the variables
 
 Controller specifications (``nanosim compare --controllers ...``)
 ------------------------------------------------------------------
-* a bench name (:data:`nanosim.design.architectures.BENCH`), designed from the identified model;
+* a design name (:data:`nanosim.design.architectures.DESIGN_RULES`: the scored bench and ``lqg-bandwidth``),
+  designed from the identified model;
 * a controller file (above);
 * ``module:function`` or ``path/to/file.py:function``: ``function()`` returns a fresh
   controller object (``step``/``reset``), a ``DiscreteController``/``ControllerConfig``, or a
