@@ -87,3 +87,21 @@ def test_folders_without_runs_are_refused(tool, tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(SystemExit, match="--runs: expected folders of nanosim pipeline"):
         tool.main(["--runs", str(tmp_path / "empty"), "--out", str(tmp_path / "v.md")])
+
+
+def test_ablation_section_is_each_row_mean_and_range_over_the_seeds(tool, tmp_path):
+    def doc(seed, settle, sigma):
+        row = {"name": "linear piezo", "change": "hysteresis and creep off", "settling_ms": settle,
+               "sigma_closed_nm": sigma, "sigma_closed_table_nm": sigma - 0.1, "contour_mean_nm_1000": 20.0,
+               "bandwidth_S_hz": 33.0}
+        folder = tmp_path / f"a{seed}"
+        folder.mkdir()
+        (folder / "ablation.json").write_text(json.dumps({
+            "seed": seed, "mechanics": "twin", "redesign": True, "rows": [row],
+            "targets": {"settling_ms": 11, "sigma_closed_nm": 1.89, "contour_mean_nm_1000": 40, "bandwidth_S_hz": 32}}))
+        return folder
+    text = "\n".join(tool.ablation([doc(0, 9.0, 1.5), doc(1, 11.0, 1.7)]))
+    assert "seed(s) 0, 1" in text and "redesigned per row" in text
+    row = [ln for ln in text.splitlines() if ln.startswith("| linear piezo |")][0]
+    assert "| 10 (9 - 11) | 1.6 (1.5 - 1.7) |" in row
+    assert [ln for ln in text.splitlines() if ln.startswith("| paper |")][0].startswith("| paper |  | 11 | 1.89 |")

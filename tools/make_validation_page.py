@@ -3,12 +3,13 @@
 Usage::
 
     python tools/make_validation_page.py --runs runs/p0 runs/p1 ... [--compare runs/bench]
-        [--montecarlo runs/mc] [--out docs/validation.md] [--readme README.md]
+        [--montecarlo runs/mc] [--ablation runs/p1 ...] [--out docs/validation.md] [--readme README.md]
 
 ``--runs``: folders of ``nanosim pipeline`` (one per seed; the folders of ``nanosim pipeline --seeds`` too), read
 through :func:`nanosim.pipeline.predictions.validation_rows` and :func:`~nanosim.pipeline.predictions.seed_summary`;
 ``--compare``: a ``nanosim compare`` folder (``scorecard.json``); ``--montecarlo``: a ``nanosim montecarlo`` folder
-(``summary.json``). The calibrated parameters come from :data:`nanosim.calibrated.CALIBRATED_PARAMETERS`. Nothing on
+(``summary.json``); ``--ablation``: folders holding the ``ablation.json`` of ``nanosim ablation`` (one per seed).
+The calibrated parameters come from :data:`nanosim.calibrated.CALIBRATED_PARAMETERS`. Nothing on
 the page is typed: every number is read from those files. ``--readme`` rewrites the block between
 ``<!-- headline:begin -->`` and ``<!-- headline:end -->`` of the README with the headline table.
 """
@@ -181,6 +182,37 @@ def montecarlo(folder: Path) -> list[str]:
     return out
 
 
+ABLATION_COLUMNS = {"settling_ms": "settling (ms)", "sigma_closed_nm": "sigma closed, sensor (nm)",
+                    "sigma_closed_table_nm": "sigma closed, table (nm)",
+                    "contour_mean_nm_1000": "contour mean at 1000 um/s (nm)", "bandwidth_S_hz": "S bandwidth (Hz)"}
+
+
+def ablation(folders) -> list[str]:
+    """The ablation rows of ``nanosim ablation`` folders: each row's mean over the folders (seeds) and their range."""
+    docs = [json.loads((Path(f) / "ablation.json").read_text()) for f in folders]
+    first = docs[0]
+    mech = sorted({d["mechanics"] for d in docs})
+    seeds = ", ".join(str(d["seed"]) for d in docs)
+    how = "the controller redesigned per row" if first["redesign"] else "the controller of the all-on stage"
+    out = [f"The paper's procedure (identification, 10-state model, the paper's weights) on the stage with one bench "
+           f"element switched off or changed per row; {how}; "
+           f"mechanics: {', '.join(mech)}; seed(s) {seeds}. Mean over the seeds (range when there are several).", ""]
+    by_name = {}
+    for d in docs:
+        for r in d["rows"]:
+            by_name.setdefault(r["name"], (r["change"], []))[1].append(r)
+    t = first["targets"]
+    rows = [["paper", "", *[t.get(k, "") if k != "sigma_closed_table_nm" else "" for k in ABLATION_COLUMNS]]]
+    for name, (change, rs) in by_name.items():
+        cells = []
+        for k in ABLATION_COLUMNS:
+            v = np.array([r[k] for r in rs], float)
+            cells.append(fmt(float(np.mean(v))) if len(v) == 1 else
+                         f"{fmt(float(np.mean(v)))} ({fmt(float(np.min(v)))} - {fmt(float(np.max(v)))})")
+        rows.append([name, change, *cells])
+    return out + table(["row", "change", *ABLATION_COLUMNS.values()], rows)
+
+
 def headline(stats: dict, n_runs: int) -> list[str]:
     """The README's one table: the paper's closed-loop figures against the simulation's mean and worst."""
     rows = []
@@ -201,6 +233,8 @@ def page(args) -> tuple[str, list[str]]:
         cmd += f" --compare {args.compare}"
     if args.montecarlo:
         cmd += f" --montecarlo {args.montecarlo}"
+    if args.ablation:
+        cmd += " --ablation " + " ".join(map(str, args.ablation))
     cl, stats = closed_loop(runs)
     lines = ["# Validation", "",
              "```{note}", "This page is generated from run folders; do not edit it. Regenerate with", "",
@@ -218,6 +252,8 @@ def page(args) -> tuple[str, list[str]]:
         lines += ["", "## Bench scorecard", ""] + scorecard(Path(args.compare))
     if args.montecarlo:
         lines += ["", "## Monte Carlo yield", ""] + montecarlo(Path(args.montecarlo))
+    if args.ablation:
+        lines += ["", "## Ablation: what each bench element does to the paper's design", ""] + ablation(args.ablation)
     return "\n".join(lines).rstrip() + "\n", headline(stats, len(runs))
 
 
@@ -237,6 +273,7 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", nargs="+", required=True, help="nanosim pipeline folders (one per seed)")
     ap.add_argument("--compare", help="a nanosim compare folder (scorecard.json)")
     ap.add_argument("--montecarlo", help="a nanosim montecarlo folder (summary.json)")
+    ap.add_argument("--ablation", nargs="+", help="folders with the ablation.json of nanosim ablation (one per seed)")
     ap.add_argument("--out", default=str(ROOT / "docs" / "validation.md"), help="the page to write")
     ap.add_argument("--readme", help="README whose marked headline block is rewritten")
     args = ap.parse_args(argv)
