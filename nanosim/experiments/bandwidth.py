@@ -11,11 +11,9 @@ closed with the controller's known feedback part ``K_fb = K_e - K_y``. The metho
 
 :func:`nanosim.pipeline.compare.reading_disturbance_sensitivity` measures the same ``S`` directly, with
 its own record (a PRBS added to the reading, zero reference), for any controller: on a linear loop the two
-agree (the ``lqg`` design on the linear twin with every electromechanical effect off: 60.8 Hz here, 60.9 Hz
-there); with the piezo's hysteresis in the loop each is the best linear description of the loop under its
-own excitation, and they can differ by some percent (the same ``lqg`` on the twin in the bench's
-electromechanics: 46 Hz here, 50 Hz there). Both use :func:`prbs_references`, :func:`h1_in_band` and
-:func:`sigma_in_band`.
+agree (``tests/test_bandwidth_sensitivity.py`` checks it); with the piezo's hysteresis in the loop each is the
+best linear description of the loop under its own excitation, and they can differ by some percent. Both use
+:func:`prbs_references`, :func:`h1_in_band` and :func:`sigma_in_band`.
 
 The step is measured in eight cases: +X, -X, +Y and -Y, each after a hold of
 1 s and of 3 s at the origin (:data:`STEP_HOLDS_S`), every case on a fresh

@@ -114,11 +114,9 @@ def reading_disturbance_sensitivity(factory, controller, seed: int = 0, duration
     beside it because it needs nothing of the controller (a ``module:function`` object's reference path is
     unknown, and the bandwidth experiment takes it as one degree of freedom), so ``nanosim compare`` scores
     every controller by one method; and because the two excitations are different experiments on a
-    hysteretic stage: they agree on a linear loop (the ``lqg`` design from ``tests/data/identified_seed0.npz``
-    on the linear twin with every electromechanical effect off, ``StageConfig.ideal()``: 60.9 Hz here,
-    60.8 Hz there) and not exactly with the piezo's hysteresis in the loop (the same ``lqg`` on the twin in
-    the bench's electromechanics, seeds 0 and 1: 50.4 Hz here, 46.0 Hz there; the paper's
-    one-degree-of-freedom design: within 1 %).
+    hysteretic stage: they agree on a linear loop (``tests/test_bandwidth_sensitivity.py``) and not exactly
+    with the piezo's hysteresis in the loop, where each is the best linear description of the loop under its
+    own excitation.
     """
     n = int(duration_s * FS)
     d_um = prbs_references(n, amplitude_um, stream_seed(seed, "feedback_sensitivity.disturbance"))
