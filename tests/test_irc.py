@@ -88,6 +88,8 @@ def test_irc_damps_every_first_pair_on_the_twin(twin_irc):
         # every axis damped: at least a fifth of the single-mode optimum (the lateral k_c is held to about a
         # fifth of the optimum by the 445-452 Hz group, and the damping grows with g below the optimum)
         assert zeta_closed >= 0.2 * zeta_max, (i, zeta_closed, zeta_max)
+        if i == 2:          # Z has no negative-residue group near its crossover: at least half the optimum
+            assert zeta_closed >= 0.5 * zeta_max, (zeta_closed, zeta_max)
     Ke, Ky = split_2dof(d.K, 3)
     assert closed_loop_spectral_radius(G, Ke, Ky) < 1.0
     assert min(p["axis_disk_margin"]) >= 0.5 - 1e-9
