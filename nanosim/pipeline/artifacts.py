@@ -30,7 +30,8 @@ __all__ = ["Artifact", "FIGURES", "figure", "MODES_JSON", "MODES_DIR", "MODEL_NP
            "MC_SAMPLES_DIR", "MC_CROSSCHECK_DIR", "MC_SPREAD_DIR", "mc_sample_json", "FIG_MC_HISTOGRAMS",
            "FIG_MC_SENSITIVITY", "FIG_MC_CROSSCHECK", "MC_BENCH_JSON", "FIG_MC_BENCH", "SWEEP_JSON",
            "SWEEP_POINTS_DIR", "sweep_point_json", "FIG_SWEEP_PARETO", "TIMINGS_JSON", "BUDGET_JSON", "BUDGET_NPZ",
-           "FIG_BUDGET_PSD", "FIG_BUDGET_CAS", "MODEL_MAT", "CONTROLLER_MAT"]
+           "FIG_BUDGET_PSD", "FIG_BUDGET_CAS", "MODEL_MAT", "CONTROLLER_MAT", "COMPENSATION_JSON",
+           "FIG_COMPENSATION"]
 
 
 @dataclass(frozen=True)
@@ -114,6 +115,9 @@ BUDGET_JSON = "budget.json"
 BUDGET_NPZ = "budget.npz"
 FIG_BUDGET_PSD = "fig_budget_psd.png"
 FIG_BUDGET_CAS = "fig_budget_cas.png"
+# nanosim pipeline's hysteresis compensation on the linear twin (nanosim.pipeline.compensation)
+COMPENSATION_JSON = "compensation.json"
+FIG_COMPENSATION = "fig_compensation.png"
 # beside model.npz and controller.npz (nanosim.pipeline.export)
 MODEL_MAT = "model.mat"
 CONTROLLER_MAT = "controller.mat"
@@ -197,6 +201,8 @@ FIGURES: tuple[Artifact, ...] = (
     Artifact(FIG18_BANDWIDTH_STEP, "characterize", "Measured bandwidth and 2 um step (Fig. 18)"),
     Artifact(FIG19_TRACKING, "characterize", "Tracking (Fig. 19)"),
     Artifact(FIG20_CONTOURING, "characterize", "Contouring (Fig. 20)"),
+    Artifact(FIG_COMPENSATION, "compensation",
+             "Hysteresis compensation on the linear twin: Fig. 14 open-loop loops and errors per drive"),
     Artifact(FIG_BUDGET_PSD, "budget", "Noise budget: stacked PSD of the table position per source (analytic)"),
     Artifact(FIG_BUDGET_CAS, "budget", "Noise budget: cumulative amplitude spectrum per source"),
 )

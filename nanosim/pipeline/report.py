@@ -420,12 +420,14 @@ def _blocks(run: Path):
                 ("table", ["quantity", "MuJoCo", "linear twin", "difference"],
                  [[lab, _fmt(a), _fmt(b), _diff(b, a)] for lab, a, b in twin_rows], None)]
     out += _robustness_blocks(run)
+    out += _compensation_blocks(run)
     out += _scan_blocks(run)
     from nanosim.pipeline.budget import report_blocks as budget_blocks
     out += budget_blocks(run)
     out += _stage_v2_blocks(run)
     out.append(("h", 2, "Figures"))
-    out += [("fig", title, rel) for title, rel in _figures(run)]
+    shown = {b[2] for b in out if b[0] == "fig"}        # a section's own figure is not repeated
+    out += [("fig", title, rel) for title, rel in _figures(run) if rel not in shown]
     return out
 
 
@@ -579,6 +581,12 @@ def _gain_ranges_on_plants(plants: dict) -> str:
     return "; ".join(parts) or "on every plant as given"
 
 
+def _compensation_blocks(run: Path) -> list:
+    """The "Hysteresis compensation" section from ``compensation.json`` (:mod:`nanosim.pipeline.compensation`)."""
+    from nanosim.pipeline.compensation import report_blocks
+    return report_blocks(run)
+
+
 def _scan_blocks(run: Path) -> list:
     """The "Scan" section from ``scan.json`` (``nanosim scan --out`` this run, or its ``scan/`` folder)."""
     from nanosim.pipeline.scan import report_blocks
@@ -599,7 +607,8 @@ def write_report(run_dir) -> tuple[Path, Path]:
 
     Sections: headline with the pass count, controller, design warnings (:func:`design_warnings`),
     paper vs simulation (the rows of :func:`pass_count`), 10 nm staircase, MuJoCo vs linear twin,
-    and every figure of the run (:data:`nanosim.pipeline.artifacts.FIGURES` first, then any other PNG).
+    robustness, hysteresis compensation (``compensation.json``), and every figure of the run
+    (:data:`nanosim.pipeline.artifacts.FIGURES` first, then any other PNG).
     """
     run = Path(run_dir)
     blocks = _blocks(run)

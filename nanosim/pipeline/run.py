@@ -23,7 +23,8 @@ from nanosim.pipeline.config import CharacterizeConfig, DesignConfig, IdentifyCo
 
 __all__ = ["step_modes", "write_twin_npz", "step_identify", "step_design", "step_characterize", "step_report",
            "PIPELINE_STEPS", "run_pipeline", "characterize_batch", "modes_task", "design_task", "spawn_pool",
-           "stop_pool", "wait_result", "experiment_specs", "experiment_jobs", "experiments_names", "file_digest"]
+           "stop_pool", "wait_result", "experiment_specs", "experiment_jobs", "experiments_names", "file_digest",
+           "compensation_jobs", "write_compensation_results"]
 
 
 def step_modes(out: Path, mjcf=None) -> None:
@@ -88,7 +89,7 @@ def step_report(out: Path) -> None:
     write_report(out)
 
 
-PIPELINE_STEPS = ("modes", "identify", "design", "characterize", "characterize_twin", "report")
+PIPELINE_STEPS = ("modes", "identify", "design", "characterize", "characterize_twin", "compensation", "report")
 
 
 def _daemon_map(fn, items, workers: int):
@@ -267,6 +268,32 @@ def experiment_jobs(pool, run_dir: Path, seed: int, mjcf, *, twin_too: bool = Tr
             experiment_specs(run_dir, seed, mjcf, twin_too=twin_too)]
 
 
+def compensation_jobs(pool, run_dir: Path, seed: int, mjcf) -> list:
+    """Submit the hysteresis-compensation cases (:mod:`nanosim.pipeline.compensation`) of ``run_dir``'s
+    controller to ``pool``, one task per case; returns their ``AsyncResult`` s.
+    """
+    from nanosim.pipeline.compensation import CASES, compensation_task
+
+    ctrl = str(Path(run_dir) / A.CONTROLLER_NPZ)
+    return [pool.apply_async(compensation_task, (ctrl, key, seed, mjcf)) for key, *_ in CASES]
+
+
+def write_compensation_results(run_dir: Path, results: list, seed: int) -> float:
+    """Write the cases of :func:`compensation_jobs` (``[(case, seconds), ...]``) into ``run_dir``
+    (``compensation.json`` and its figure); their seconds go to its ``timings.json``. Returns the step's
+    wall time [s]: the cases' seconds (summed: the cost the step adds) and the writing.
+    """
+    from nanosim.pipeline.compensation import write_compensation
+    from nanosim.pipeline.timings import record_timings
+
+    t0 = time.perf_counter()
+    write_compensation(run_dir, [case for case, _ in results], seed=seed)
+    seconds = {case.key: sec for case, sec in results}
+    seconds["write"] = round(time.perf_counter() - t0, 2)
+    record_timings(run_dir, {A.COMPENSATION_JSON: {"case_seconds": seconds}})
+    return round(sum(seconds.values()), 2)
+
+
 def experiments_names() -> list:
     """The registered experiments, in registry order."""
     from nanosim import experiments
@@ -333,6 +360,7 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
                 launched["t0"] = time.perf_counter()
                 launched["digest"] = file_digest(out / A.CONTROLLER_NPZ)
                 launched["jobs"] = experiment_jobs(pool, out, cfg.seed, mj, twin_too=twin_too)
+                launched["compensation"] = compensation_jobs(pool, out, cfg.seed, mj)
             except BaseException as exc:  # noqa: BLE001  (handed to the main thread)
                 if not stopping.is_set():     # else the main thread is stopping the pool under this thread
                     launched["error"] = exc
@@ -358,9 +386,11 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
         if "jobs" not in launched:
             jobs["design"].get()          # the design failed: raise its error
         t0, digest, exp_jobs = launched["t0"], launched["digest"], launched["jobs"]
+        comp_jobs = launched["compensation"]
         done("design", wait_result(jobs["design"]), "characterize")
         if file_digest(out / A.CONTROLLER_NPZ) != digest:     # not the analysed controller: run them again
             exp_jobs = experiment_jobs(pool, out, cfg.seed, mj, twin_too=twin_too)
+            comp_jobs = compensation_jobs(pool, out, cfg.seed, mj)
         parts: dict = {False: {}, True: {}}
         left = {False: len(experiments_names()), True: len(experiments_names()) if twin_too else 0}
         for tw, _, job in exp_jobs:
@@ -369,13 +399,14 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
             left[tw] -= 1
             if left[tw] == 0:
                 done("characterize_twin" if tw else "characterize", round(time.perf_counter() - t0, 2))
+        comp_results = [wait_result(job) for job in comp_jobs]
     except BaseException:
         stopping.set()
         if pool is not None:
             stop_pool(pool)   # Ctrl-C or a failed step: stop the workers now, do not wait for them
         if manager is not None:
             stop_manager(manager)
-        pool = jobs = job = exp_jobs = start_design = ready = manager = launched = launcher = None
+        pool = jobs = job = exp_jobs = comp_jobs = start_design = ready = manager = launched = launcher = None
         gc.collect()
         raise
     manager.shutdown()
@@ -388,6 +419,7 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     write_task_metrics(out, parts[False], cfg.seed)
     if twin_too:
         write_task_metrics(out / A.TWIN_DIR, parts[True], cfg.seed, twin=True, run_dir=out)
+    done("compensation", write_compensation_results(out, comp_results, cfg.seed))
     timings["overlapped_wall"] = round(time.perf_counter() - t_start, 2)
     write_json(out / A.PIPELINE_JSON, {"seed": cfg.seed})
     record_timings(out, {A.PIPELINE_JSON: {"stage_seconds": timings}})    # the report reads it

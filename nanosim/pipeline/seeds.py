@@ -110,13 +110,15 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
     import queue
 
     from nanosim.pipeline.characterize import write_task_metrics
+    from nanosim.pipeline.compensation import CASES, compensation_task
     from nanosim.pipeline.run import (design_task, experiment_specs, experiments_names, modes_task, spawn_pool,
-                                      stop_pool)
+                                      stop_pool, write_compensation_results)
     from nanosim.pipeline.workers import stop_deferred
 
     mj = None if cfg.mjcf is None else str(cfg.mjcf)
     n_exp = len(experiments_names()) * (2 if cfg.characterize_twin_too else 1)
-    totals = {"modes": 0.0, "identify": 0.0, "design": 0.0, "characterize": 0.0, "characterize_twin": 0.0}
+    totals = {"modes": 0.0, "identify": 0.0, "design": 0.0, "characterize": 0.0, "characterize_twin": 0.0,
+              "compensation": 0.0}
     ready: list = []              # heap of (urgency, cost, order, kind, seed, fn, args)
     order = iter(range(10 ** 9))
 
@@ -132,6 +134,7 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
         icfg = dataclasses.replace(cfg.identify, seed=s)
         push(1, 0.0, "identify", s, _identify_task, (str(_seed_dir(out, s)), icfg, mj))
     parts = {s: {False: {}, True: {}} for s in seeds}
+    comp: dict = {s: [] for s in seeds}        # the hysteresis-compensation cases of each seed as they come in
     left = {s: n_exp for s in seeds}
     finished: queue.SimpleQueue = queue.SimpleQueue()
     pool = None
@@ -166,6 +169,13 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
                 for cost, tw, _, fn, args in experiment_specs(_seed_dir(out, s), s, mj,
                                                               twin_too=cfg.characterize_twin_too):
                     push(2, cost, "twin" if tw else "mujoco", s, fn, args)
+                ctrl = str(_seed_dir(out, s) / A.CONTROLLER_NPZ)
+                for key, *_ in CASES:                # about as long as the twin's longest experiment
+                    push(2, 2.0, "compensation", s, compensation_task, (ctrl, key, s, mj))
+            elif kind == "compensation":
+                comp[s].append(result)
+                if len(comp[s]) == len(CASES):
+                    totals["compensation"] += write_compensation_results(_seed_dir(out, s), comp[s], s)
             else:
                 name, met, sec = result
                 tw = kind == "twin"
