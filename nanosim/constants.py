@@ -189,8 +189,8 @@ STATIC_GAIN_SCALE_UM_PER_V = 3.0
 # --- the controller design's defaults -----------------------------------------
 # Defaults of nanosim.pipeline.config.DesignConfig, here because nanosim.design (the hinf-damped bench
 # design, the damping loop) uses them too and may not import the pipeline.
-# 14 states: the Hankel singular values fall 27x after state 12, and states 13-14 (the
-# 1 s creep stage) move the full-model S bandwidth from 27.9 to 29.7 Hz (README, "Controller").
+# 14 states: the Hankel singular values of the identified models fall by more than an order of magnitude
+# after the first twelve; states 13-14 keep the slowest creep stage, which raises the loop's gain below 1 Hz.
 DEFAULT_REDUCED_ORDER = 14
 # Damping ratio the inner active-damping loop adds to the first mode (0 = no damping loop).
 DEFAULT_DAMPING_ZETA = 0.1

@@ -2,9 +2,8 @@
 
 A step through a feedback loop excites every closed-loop pole of the reference-to-output map
 ``T_ry``. Where a lightly damped pair carries a visible share of the step, the output rings
-for ``~4 / (zeta w)`` seconds after the rise (on this stage: the 450-458 Hz pair of the
-``lqg`` loop, zeta 0.063-0.069, 4-5 % of a step, ringing through the 2 % band until
-10.75-13 ms). Feedback cannot remove that ring without changing the loop; a prefilter on the
+for ``~4 / (zeta w)`` seconds after the rise (on this stage, for example, the second XY pair,
+about 450 Hz, in the ``lqg`` loop). Feedback cannot remove that ring without changing the loop; a prefilter on the
 reference can: a notch whose zeros sit on the pair (mapped pole by pole, so exactly on it)
 and whose poles are well damped keeps the pair from being excited. The loop's feedback
 operator, so its margins, mu, sensitivities and noise, is unchanged: only the reference path
