@@ -100,8 +100,15 @@ def test_ablation_section_is_each_row_mean_and_range_over_the_seeds(tool, tmp_pa
             "seed": seed, "mechanics": "twin", "redesign": True, "rows": [row],
             "targets": {"settling_ms": 11, "sigma_closed_nm": 1.89, "contour_mean_nm_1000": 40, "bandwidth_S_hz": 32}}))
         return folder
-    text = "\n".join(tool.ablation([doc(0, 9.0, 1.5), doc(1, 11.0, 1.7)]))
+    folders = [doc(0, 9.0, 1.5), doc(1, 11.0, 1.7)]
+    text = "\n".join(tool.ablation(folders))
     assert "seed(s) 0, 1" in text and "redesigned per row" in text
     row = [ln for ln in text.splitlines() if ln.startswith("| linear piezo |")][0]
     assert "| 10 (9 - 11) | 1.6 (1.5 - 1.7) |" in row
     assert [ln for ln in text.splitlines() if ln.startswith("| paper |")][0].startswith("| paper |  | 11 | 1.89 |")
+    out = tmp_path / "ablation.md"
+    assert tool.main(["--ablation", *map(str, folders), "--out", str(out)]) == 0
+    page = out.read_text()
+    assert page.startswith("# Ablation") and row in page and "generated from the ablation.json" in page
+    with pytest.raises(SystemExit, match="--runs: expected"):
+        tool.main(["--out", str(out)])

@@ -8,7 +8,8 @@ Usage::
 ``--runs``: folders of ``nanosim pipeline`` (one per seed; the folders of ``nanosim pipeline --seeds`` too), read
 through :func:`nanosim.pipeline.predictions.validation_rows` and :func:`~nanosim.pipeline.predictions.seed_summary`;
 ``--compare``: a ``nanosim compare`` folder (``scorecard.json``); ``--montecarlo``: a ``nanosim montecarlo`` folder
-(``summary.json``); ``--ablation``: folders holding the ``ablation.json`` of ``nanosim ablation`` (one per seed).
+(``summary.json``); ``--ablation``: folders holding the ``ablation.json`` of ``nanosim ablation`` (one per
+seed); with ``--ablation`` and no ``--runs`` the ablation table is written as a page of its own.
 The calibrated parameters come from :data:`nanosim.calibrated.CALIBRATED_PARAMETERS`. Nothing on
 the page is typed: every number is read from those files. ``--readme`` rewrites the block between
 ``<!-- headline:begin -->`` and ``<!-- headline:end -->`` of the README with the headline table.
@@ -213,6 +214,15 @@ def ablation(folders) -> list[str]:
     return out + table(["row", "change", *ABLATION_COLUMNS.values()], rows)
 
 
+def ablation_page(folders) -> str:
+    """A page of its own holding only the ablation table of ``folders``."""
+    cmd = "python tools/make_validation_page.py --ablation " + " ".join(map(str, folders))
+    lines = ["# Ablation", "", "```{note}", "This page is generated from the ablation.json of nanosim ablation; do not "
+             "edit it. Regenerate with", "", f"    {cmd} --out docs/ablation.md", "```", "",
+             f"nanosim {__version__}.", ""]
+    return "\n".join(lines + ablation(folders)).rstrip() + "\n"
+
+
 def headline(stats: dict, n_runs: int) -> list[str]:
     """The README's one table: the paper's closed-loop figures against the simulation's mean and worst."""
     rows = []
@@ -270,13 +280,20 @@ def replace_headline(readme: Path, table_lines: list[str]) -> None:
 def main(argv=None) -> int:
     """Command line (see the module docstring)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", nargs="+", required=True, help="nanosim pipeline folders (one per seed)")
+    ap.add_argument("--runs", nargs="+", help="nanosim pipeline folders (one per seed); without them, only the "
+                                              "--ablation table is written, as a page of its own")
     ap.add_argument("--compare", help="a nanosim compare folder (scorecard.json)")
     ap.add_argument("--montecarlo", help="a nanosim montecarlo folder (summary.json)")
     ap.add_argument("--ablation", nargs="+", help="folders with the ablation.json of nanosim ablation (one per seed)")
     ap.add_argument("--out", default=str(ROOT / "docs" / "validation.md"), help="the page to write")
     ap.add_argument("--readme", help="README whose marked headline block is rewritten")
     args = ap.parse_args(argv)
+    if not args.runs:
+        if not args.ablation or args.readme:
+            raise SystemExit("--runs: expected folders of nanosim pipeline (or --ablation alone, without --readme)")
+        Path(args.out).write_text(ablation_page(args.ablation))
+        print(f"wrote {args.out}")
+        return 0
     text, head = page(args)
     Path(args.out).write_text(text)
     if args.readme:
