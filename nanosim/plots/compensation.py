@@ -26,7 +26,7 @@ def compensation_plot(loops: dict, doc: dict):
     for label, (v, x) in loops.items():
         a.plot(v, x, lw=1.0, label=label)
     a.set_xlabel("actuator A command (controller V)")
-    a.set_ylabel("X displacement (um)")
+    a.set_ylabel("X displacement along its travel (um)")
     a.set_title("(a) open loop, Fig. 14: 0 -> 1.65 -> 0 V in 2 s", fontsize=10)
     a.legend(fontsize=8)
     a.grid(alpha=0.3)
