@@ -183,6 +183,7 @@ def montecarlo(folder: Path) -> list[str]:
     return out
 
 
+MECHANICS = {"twin": "the linear twin in the bench's electromechanics", "mujoco": "MuJoCo"}
 ABLATION_COLUMNS = {"settling_ms": "settling (ms)", "sigma_closed_nm": "sigma closed, sensor (nm)",
                     "sigma_closed_table_nm": "sigma closed, table (nm)",
                     "contour_mean_nm_1000": "contour mean at 1000 um/s (nm)", "bandwidth_S_hz": "S bandwidth (Hz)"}
@@ -197,7 +198,8 @@ def ablation(folders) -> list[str]:
     how = "the controller redesigned per row" if first["redesign"] else "the controller of the all-on stage"
     out = [f"The paper's procedure (identification, 10-state model, the paper's weights) on the stage with one bench "
            f"element switched off or changed per row; {how}; "
-           f"mechanics: {', '.join(mech)}; seed(s) {seeds}. Mean over the seeds (range when there are several).", ""]
+           f"mechanics: {', '.join(MECHANICS.get(m, m) for m in mech)}; seed(s) {seeds}. Mean over the seeds (range "
+           "when there are several).", ""]
     by_name = {}
     for d in docs:
         for r in d["rows"]:
@@ -217,9 +219,10 @@ def ablation(folders) -> list[str]:
 def ablation_page(folders) -> str:
     """A page of its own holding only the ablation table of ``folders``."""
     cmd = "python tools/make_validation_page.py --ablation " + " ".join(map(str, folders))
-    lines = ["# Ablation", "", "```{note}", "This page is generated from the ablation.json of nanosim ablation; do not "
-             "edit it. Regenerate with", "", f"    {cmd} --out docs/ablation.md", "```", "",
-             f"nanosim {__version__}.", ""]
+    lines = ["# Ablation", "", "```{note}", "This page is generated from the ablation.json that `nanosim ablation "
+             "--run RUN` writes for a `nanosim pipeline --paper-design` run folder; do not edit it. Regenerate with",
+             "",
+             f"    {cmd} --out docs/ablation.md", "```", "", f"nanosim {__version__}.", ""]
     return "\n".join(lines + ablation(folders)).rstrip() + "\n"
 
 
