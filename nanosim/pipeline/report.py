@@ -488,7 +488,7 @@ def _quantizer_blocks(src: dict, ratio: dict) -> list:
         return []
     parts = [f"{name} {_fmt(r['sensor_marginal_nm'])} nm of the reading and {_fmt(r.get('table_marginal_nm'))} nm "
              f"of the table (the loop without it: {_fmt(r.get('sensor_without_nm'))} nm)" for name, r in marg]
-    return [("p", "An undithered quantizer's error follows the signal it quantizes, so its record alone is not its "
+    return [("p", "An undithered quantizer's error depends on the signal it quantizes, so its record alone is not its "
                   "share. Measured with every other source on (the total's variance less the variance without it): "
                   + "; ".join(parts) + ". With these in place of their values alone the sums over the measured "
                   f"totals are {_fmt(ratio.get('sensor_marginal'))} (reading) and "
