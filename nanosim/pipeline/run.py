@@ -24,7 +24,7 @@ from nanosim.pipeline.config import CharacterizeConfig, DesignConfig, IdentifyCo
 __all__ = ["step_modes", "write_twin_npz", "step_identify", "step_design", "step_characterize", "step_report",
            "PIPELINE_STEPS", "run_pipeline", "characterize_batch", "modes_task", "design_task", "spawn_pool",
            "stop_pool", "wait_result", "experiment_specs", "experiment_jobs", "experiments_names", "file_digest",
-           "compensation_jobs", "write_compensation_results"]
+           "compensation_specs", "compensation_jobs", "write_compensation_results"]
 
 
 def step_modes(out: Path, mjcf=None) -> None:
@@ -268,14 +268,20 @@ def experiment_jobs(pool, run_dir: Path, seed: int, mjcf, *, twin_too: bool = Tr
             experiment_specs(run_dir, seed, mjcf, twin_too=twin_too)]
 
 
-def compensation_jobs(pool, run_dir: Path, seed: int, mjcf) -> list:
-    """Submit the hysteresis-compensation cases (:mod:`nanosim.pipeline.compensation`) of ``run_dir``'s
-    controller to ``pool``, one task per case; returns their ``AsyncResult`` s.
+def compensation_specs(run_dir: Path, seed: int, mjcf) -> list:
+    """The hysteresis-compensation cases (:mod:`nanosim.pipeline.compensation`) of ``run_dir``'s controller
+    as tasks, one per case: ``[(fn, args), ...]``.
     """
     from nanosim.pipeline.compensation import CASES, compensation_task
 
     ctrl = str(Path(run_dir) / A.CONTROLLER_NPZ)
-    return [pool.apply_async(compensation_task, (ctrl, key, seed, mjcf)) for key, *_ in CASES]
+    mj = None if mjcf is None else str(mjcf)
+    return [(compensation_task, (ctrl, key, seed, mj)) for key, *_ in CASES]
+
+
+def compensation_jobs(pool, run_dir: Path, seed: int, mjcf) -> list:
+    """Submit :func:`compensation_specs` to ``pool``; returns their ``AsyncResult`` s."""
+    return [pool.apply_async(fn, args) for fn, args in compensation_specs(run_dir, seed, mjcf)]
 
 
 def write_compensation_results(run_dir: Path, results: list, seed: int) -> float:

@@ -110,9 +110,9 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
     import queue
 
     from nanosim.pipeline.characterize import write_task_metrics
-    from nanosim.pipeline.compensation import CASES, compensation_task
-    from nanosim.pipeline.run import (design_task, experiment_specs, experiments_names, modes_task, spawn_pool,
-                                      stop_pool, write_compensation_results)
+    from nanosim.pipeline.compensation import CASES
+    from nanosim.pipeline.run import (compensation_specs, design_task, experiment_specs, experiments_names,
+                                      modes_task, spawn_pool, stop_pool, write_compensation_results)
     from nanosim.pipeline.workers import stop_deferred
 
     mj = None if cfg.mjcf is None else str(cfg.mjcf)
@@ -169,9 +169,8 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
                 for cost, tw, _, fn, args in experiment_specs(_seed_dir(out, s), s, mj,
                                                               twin_too=cfg.characterize_twin_too):
                     push(2, cost, "twin" if tw else "mujoco", s, fn, args)
-                ctrl = str(_seed_dir(out, s) / A.CONTROLLER_NPZ)
-                for key, *_ in CASES:                # about as long as the twin's longest experiment
-                    push(2, 2.0, "compensation", s, compensation_task, (ctrl, key, s, mj))
+                for fn, args in compensation_specs(_seed_dir(out, s), s, mj):   # about as long as the twin's longest
+                    push(2, 2.0, "compensation", s, fn, args)                     # experiment
             elif kind == "compensation":
                 comp[s].append(result)
                 if len(comp[s]) == len(CASES):
