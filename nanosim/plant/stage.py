@@ -176,7 +176,9 @@ class Stage:
         return _trace(t, u, act, table, self.sensors)
 
 
-_CHUNK = 1000  # control periods per rollout call (bounds memory: states are per substep)
+#: Control periods per rollout call: bounds memory (states are per substep) and the time a call
+#: holds the main thread (a signal is handled between calls), a fraction of a second for a batch.
+_CHUNK = 250
 
 
 def rollout_probes_um(model, datas, start: mujoco.MjData, forces: np.ndarray, substeps: int,
