@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 
 ct = pytest.importorskip("control")
 pytest.importorskip("slycot")
@@ -97,9 +98,13 @@ def test_four_block_design_is_stable_with_finite_gamma_and_damps_the_first_pair(
     assert p["gamma_grid_check"] <= 1.05 * p["gamma"]
     assert p["controller_order"] == fourblock.K.nstates
     assert fourblock.K.ninputs == 6                      # two degrees of freedom: u = K (F r - y), inputs [e; y]
-    pf = p["reference_prefilter"]
-    assert p["controller_order"] == p["feedback_order"] + pf["prefilter_states"]
+    pf, eq = p["reference_prefilter"], p["reference_lag_equalizer"]
+    assert p["controller_order"] == p["feedback_order"] + pf["prefilter_states"] + eq["prefilter_states"]
     assert pf["ringing_pairs"] and not pf["ringing_pairs_after"]
+    # the lag equalizer: every axis trails a ramp by the slowest axis's lag, no cross lag, on the identified model
+    after = np.asarray(eq["lag_matrix_after_ms"])
+    assert_allclose(after, eq["common_lag_ms"] * np.eye(3), atol=1e-6 * eq["common_lag_ms"])
+    assert eq["common_lag_ms"] == pytest.approx(max(np.diag(eq["lag_matrix_ms"])), rel=1e-12)
     assert closed_loop_spectral_radius(model, *fourblock.split()) < 1.0
     # the required S bandwidth, predicted on the identified model for the feedback loop (I + G K)^-1
     assert p["predicted_bandwidth_S_hz"] >= p["required_bandwidth_S_hz"] == pytest.approx(BANDWIDTH_MARGIN * 32.0)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 
 ct = pytest.importorskip("control")
 
@@ -17,6 +18,9 @@ from nanosim.design.architectures.prefilter import (  # noqa: E402
     NOTCH_POLE_ZETA,
     RingPair,
     design_reference_prefilter,
+    equalize_reference_lag,
+    lag_equalizer,
+    reference_lag_matrix,
     reference_notch,
     ringing_pairs,
     with_reference_prefilter,
@@ -141,3 +145,58 @@ def test_matched_notch_rejects_frequencies_above_nyquist_and_bad_damping():
         matched_notch(450.0, 0.7, -0.1)
     N = matched_notch(450.0, 0.7, 0.0)                               # zeros on the unit circle: a null at 450 Hz
     assert abs(freqresp_z(N, np.array([450.0]))[0, 0, 0]) < 1e-9
+
+
+# --- lag equalization -------------------------------------------------------------------------------------------
+def _two_axis_loop(f1_hz, f2_hz, coupling=0.0):
+    """Two integrator axes closed by unit feedback at crossovers ``f1``, ``f2`` (``T_jj = w_j / (s + w_j)``,
+    ramp lag ``1 / w_j``), Tustin at the control period; ``coupling`` adds ``coupling x`` axis 2's integrator
+    to axis 1's output."""
+    w1, w2 = 2 * np.pi * f1_hz, 2 * np.pi * f2_hz
+    Gc = ct.ss(np.zeros((2, 2)), np.diag([w1, w2]), np.array([[1.0, coupling], [0.0, 1.0]]), np.zeros((2, 2)))
+    return ct.ss(ct.c2d(Gc, DT_S, "tustin")), ct.ss([], [], [], np.eye(2), DT_S)
+
+
+def _ramp_lags(G, K, n=2000):
+    """Steady tracking lag [s] of each axis behind a unit-velocity ramp on both references at once."""
+    T = loop_transfer_ss(G, *split_2dof(K, 2)).T_ry
+    t = np.arange(n) * DT_S
+    _, y = ct.forced_response(T, T=t, U=np.vstack([t, t]))
+    return t[-1] - np.asarray(y)[:, -1]
+
+
+def test_lag_matrix_of_two_first_order_loops_is_their_time_constants():
+    G, K = _two_axis_loop(30.0, 36.0)
+    Lam = reference_lag_matrix(G, K)
+    assert_allclose(np.diag(Lam), [1 / (2 * np.pi * 30.0), 1 / (2 * np.pi * 36.0)], rtol=1e-9)
+    assert_allclose([Lam[0, 1], Lam[1, 0]], 0.0, atol=1e-15)
+    # the ramp response's steady lag is the row sum (both references ramp)
+    assert_allclose(_ramp_lags(G, K), Lam.sum(axis=1), rtol=1e-6)
+
+
+@pytest.mark.parametrize("coupling", [0.0, 0.05])
+def test_lag_equalizer_gives_every_axis_the_slowest_axis_lag_and_no_cross_lag(coupling):
+    """Axes at 30 and 36 Hz (5.31 and 4.42 ms, a diagonal ramp leaves its line by 0.63 um per mm/s of
+    speed): after the equalizer both trail by the slower axis's lag, to 1e-9 of it, cross lags gone."""
+    G, K = _two_axis_loop(30.0, 36.0, coupling)
+    before = _ramp_lags(G, K)
+    assert abs(before[0] - before[1]) > 5e-4
+    K2, p = equalize_reference_lag(G, K, 2)
+    Lam2 = np.asarray(p["lag_matrix_after_ms"]) * 1e-3
+    lam = max(np.diag(reference_lag_matrix(G, K)))
+    assert p["common_lag_ms"] == pytest.approx(1e3 * lam, rel=1e-12)
+    assert_allclose(Lam2, lam * np.eye(2), atol=1e-9 * lam)
+    assert_allclose(_ramp_lags(G, K2), [lam, lam], rtol=1e-6)
+    # the feedback operator is untouched: the loop's S from an output disturbance is the same
+    f = np.geomspace(1.0, 1000.0, 50)
+    Ke2, Ky2 = split_2dof(K2, 2)
+    S1 = loop_transfer_response(G, Ke2, f, Ky=Ky2).S_o
+    S0 = loop_transfer_response(G, K, f).S_o
+    assert_allclose(S1, S0, rtol=1e-9, atol=1e-12)
+
+
+def test_lag_equalizer_rejects_a_non_square_matrix_and_a_bad_time_constant():
+    with pytest.raises(ValueError, match="lag_s: expected a finite square matrix, got shape"):
+        lag_equalizer(np.zeros((2, 3)))
+    with pytest.raises(ValueError, match=r"tau_f_s: expected a time > 0 \[s\], got 0"):
+        lag_equalizer(np.eye(2), tau_f_s=0)

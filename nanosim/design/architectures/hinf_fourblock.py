@@ -59,7 +59,9 @@ conversion, so the discrete loop is the Tustin image of the designed one).
 The exported loop has two degrees of freedom, ``u = K (F r - y)``: ``F`` notches the reference at
 the closed loop's ringing pairs (:func:`nanosim.design.architectures.prefilter.design_reference_prefilter`:
 the pairs of ``T_ry`` with ``zeta < 0.1`` above 100 Hz that carry at least 1 % of a step, zeros on the
-pair and pole damping 0.7, the same filter on every axis). The damped first pair would otherwise
+pair and pole damping 0.7, the same filter on every axis), then equalizes the axes' ramp lags to the
+slowest axis's (:func:`nanosim.design.architectures.prefilter.equalize_reference_lag`), so that a
+straight path stays straight on the identified model. The damped first pair would otherwise
 ring through the 2 % band of a step for several of its decay times ``1 / (zeta w)``; feedback, margins, mu and noise are
 those of ``K`` alone. The S bandwidth is the feedback loop's, ``(I + G K)^-1``
 (:func:`nanosim.experiments.bandwidth.bandwidth` measures it so); ``reference_prefilter=False``
@@ -432,8 +434,9 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIE
         times :data:`BANDWIDTH_MARGIN`.
     reference_prefilter : bool
         True (default): notch the reference at the closed loop's ringing pairs
-        (:func:`~nanosim.design.architectures.prefilter.design_reference_prefilter`); False: the
-        one-degree-of-freedom loop ``u = K (r - y)``.
+        (:func:`~nanosim.design.architectures.prefilter.design_reference_prefilter`) and equalize the
+        axes' ramp lags (:func:`~nanosim.design.architectures.prefilter.equalize_reference_lag`); False:
+        the one-degree-of-freedom loop ``u = K (r - y)``.
     disturbance_bandwidth_hz : float or None
         Corner of the hysteresis part of ``Wd`` (:func:`disturbance_weight`) [Hz]; default the paper's
         T bandwidth (:data:`DISTURBANCE_BANDWIDTH_HZ`); None: flat to the Nyquist low-pass.
@@ -521,8 +524,9 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIE
     if not reference_prefilter:
         params["reference_prefilter"] = None
         return BenchDesign("hinf", Kd, ny, TUNING_RULE, params)
-    from nanosim.design.architectures.prefilter import design_reference_prefilter
+    from nanosim.design.architectures.prefilter import design_reference_prefilter, equalize_reference_lag
     K2, prefilter = design_reference_prefilter(Gd, Kd, ny, delay_samples=delay_samples, dt=dt)
-    params.update({"controller_order": int(K2.nstates), "feedback_order": int(Kd.nstates),
-                   "reference_prefilter": prefilter})
-    return BenchDesign("hinf", K2, ny, TUNING_RULE, params)
+    K3, lag = equalize_reference_lag(Gd, K2, ny, delay_samples=delay_samples, dt=dt)
+    params.update({"controller_order": int(K3.nstates), "feedback_order": int(Kd.nstates),
+                   "reference_prefilter": prefilter, "reference_lag_equalizer": lag})
+    return BenchDesign("hinf", K3, ny, TUNING_RULE, params)

@@ -21,6 +21,22 @@ Rule (:func:`design_reference_prefilter`):
 * the same filter on every axis, so that a straight path stays straight (different delays on
   X and Y would turn a 45 degree line's lag into contour error).
 
+Lag equalization (:func:`equalize_reference_lag`). At low frequency ``T_ry(s) = T_0 (I - s Lambda + O(s^2))``,
+``T_0 = T_ry(0)``: a ramp of velocity ``v`` on axis ``j`` is followed ``Lambda v`` behind, so axis ``i``
+lags by ``Lambda_ij v_j``.
+A straight path stays straight only if every axis lags by the same time; a loop designed on a model whose
+axes differ (the parallel kinematics, the per-column identification) does not, and a diagonal contour
+then leaves its line by ``|Lambda_xx - Lambda_yy| v / sqrt(2)`` (Koren, *Cross-coupled biaxial computer
+control for manufacturing systems*, J. Dyn. Sys. Meas. Control 102, 1980: the contour error of a
+biaxial system is set by the axes' mismatch, not by their common lag). The prefilter
+
+    F(s) = I - (lambda I - Lambda) s / (1 + s tau_f),   lambda = max_j Lambda_jj,
+
+gives ``T_ry F = T_0 (I - s lambda I + O(s^2))``: every axis follows with the slowest axis's lag and
+no cross lag. ``Lambda = T_0^-1 dt C (I - A)^-2 B`` exactly, from the discrete ``T_ry`` (``z = e^(s dt)``);
+``tau_f`` (:data:`LAG_FILTER_S`) rolls the derivative off well below the first mode, where the
+correction (a difference of lags, a few per cent of ``lambda``) is already negligible.
+
 The prefilter is realized inside the controller: with ``r = e + y`` (the bench feeds
 ``e = r - y`` and ``y``), ``u = K [F r - y; y] = K [F e + (F - I) y; y]``
 (:func:`with_reference_prefilter`), so the result is an ordinary ``[e; y]`` controller.
@@ -34,7 +50,8 @@ import numpy as np
 from nanosim.design.architectures.common import DT_S, IDENTIFIED_DELAY_SAMPLES, mode_groups
 
 __all__ = ["RingPair", "ringing_pairs", "reference_notch", "matched_notch", "with_reference_prefilter",
-           "design_reference_prefilter", "RING_ZETA_MAX", "RING_MIN_STEP_FRACTION", "RING_MIN_HZ", "NOTCH_POLE_ZETA",
+           "design_reference_prefilter", "reference_lag_matrix", "lag_equalizer", "equalize_reference_lag",
+           "LAG_FILTER_S", "RING_ZETA_MAX", "RING_MIN_STEP_FRACTION", "RING_MIN_HZ", "NOTCH_POLE_ZETA",
            "GROUP_REL_GAP"]
 
 RING_ZETA_MAX = 0.1
@@ -44,6 +61,9 @@ NOTCH_POLE_ZETA = 0.7
 GROUP_REL_GAP = 0.05
 # relative offset from a pole at which its residue is evaluated
 RESIDUE_STEP = 1e-6
+# time constant of the lag equalizer's derivative [s]: corner at 160 Hz, below the first pair (~175 Hz)
+# and a sixth of the loop's lag (~5 ms), so the correction is complete over the scan band
+LAG_FILTER_S = 1e-3
 
 
 @dataclass(frozen=True)
@@ -164,14 +184,14 @@ def with_reference_prefilter(K, F, n_error: int):
     K : control.StateSpace
         Discrete controller, inputs ``[e]`` (``n_error``) or ``[e; y]``.
     F : control.StateSpace
-        SISO prefilter, applied to every reference channel (same ``dt``).
+        SISO prefilter, applied to every reference channel, or ``n_error x n_error`` (same ``dt``).
     n_error : int
         Number of error (and reference) channels.
 
     Returns
     -------
     control.StateSpace
-        Inputs ``[e; y]`` (``2 n_error``), states ``[F states (n_error copies); K states]``.
+        Inputs ``[e; y]`` (``2 n_error``), states ``[F states (n_error copies of a SISO F); K states]``.
     """
     import control as ct
     n = n_error
@@ -179,9 +199,14 @@ def with_reference_prefilter(K, F, n_error: int):
         raise ValueError(f"K: expected {n} or {2 * n} inputs, got {K.ninputs}")
     if not np.isclose(float(F.dt), float(K.dt)):
         raise ValueError(f"F: expected the controller's sample time {K.dt}, got {F.dt}")
+    if (F.ninputs, F.noutputs) not in ((1, 1), (n, n)):
+        raise ValueError(f"F: expected a SISO or {n} x {n} prefilter, got {F.noutputs} x {F.ninputs}")
     Fa, Fb, Fc, Fd = (np.asarray(m, float) for m in (F.A, F.B, F.C, F.D))
     I_n = np.eye(n)
-    Ab, Bb, Cb, Db = (np.kron(I_n, m) for m in (Fa, Fb, Fc, Fd))        # F on each channel
+    if F.ninputs == 1 and n > 1:
+        Ab, Bb, Cb, Db = (np.kron(I_n, m) for m in (Fa, Fb, Fc, Fd))    # F on each channel
+    else:
+        Ab, Bb, Cb, Db = Fa, Fb, Fc, Fd
     nf = Ab.shape[0]
     # M: [e; y] -> [F (e + y) - y; y], or [F (e + y) - y] for a one-degree-of-freedom K
     Bm = np.hstack([Bb, Bb])
@@ -217,4 +242,79 @@ def design_reference_prefilter(G, K, n_error: int, *, delay_samples: int = IDENT
               "ringing_pairs": [asdict(p) for p in pairs], "notches": notches,
               "ringing_pairs_after": [asdict(p) for p in after],
               "prefilter_states": 0 if F is None else int(F.nstates) * n_error}
+    return K2, params
+
+
+def reference_lag_matrix(G, Ke, Ky=None, *, delay_samples: int = IDENTIFIED_DELAY_SAMPLES) -> np.ndarray:
+    """``Lambda`` [s] of ``T_ry(s) = T_0 (I - s Lambda + O(s^2))`` for ``u = Ke e + Ky y`` around the discrete ``G``.
+
+    ``Lambda_ij`` is how far output ``i`` trails a unit-velocity ramp on reference ``j`` once the loop
+    has settled (the diagonal: each axis's tracking lag), relative to the loop's static gain ``T_0``.
+    Computed exactly from the discrete closed loop ``T(z) = C (z I - A)^-1 B + D``:
+    ``dT/ds = dt dT/dz = -dt C (I - A)^-2 B`` at ``z = 1``.
+
+    Examples
+    --------
+    A loop ``T(s) = 1 / (1 + s / w)`` trails a ramp by ``1 / w``:
+
+    >>> import control as ct
+    >>> w, dt = 2 * np.pi * 30, 2.5e-4
+    >>> G = ct.c2d(ct.ss(ct.tf([w], [1, 0])), dt, "tustin")          # integrator, crossover w
+    >>> K = ct.ss([], [], [], [[1.0]], dt)
+    >>> round(float(reference_lag_matrix(G, K)[0, 0] * w), 2)
+    1.0
+    """
+    from nanosim.design.loopresponse import loop_transfer_ss
+    T = loop_transfer_ss(G, Ke, Ky, delay_samples).T_ry
+    A, B, C, D = (np.asarray(m, float) for m in (T.A, T.B, T.C, T.D))
+    M = np.linalg.solve(np.eye(A.shape[0]) - A, B)
+    T0 = C @ M + D
+    return np.linalg.solve(T0, float(T.dt) * C @ np.linalg.solve(np.eye(A.shape[0]) - A, M))
+
+
+def lag_equalizer(lag_s, dt: float = DT_S, tau_f_s: float = LAG_FILTER_S):
+    """``(F, lambda_s)``: ``I - (lambda I - Lambda) s / (1 + s tau_f)`` (module docstring), Tustin at ``dt``.
+
+    Parameters
+    ----------
+    lag_s : (n, n) array
+        ``Lambda`` [s] (:func:`reference_lag_matrix`).
+    dt : float
+        Control period [s].
+    tau_f_s : float
+        Derivative roll-off [s].
+    """
+    import control as ct
+    Lam = np.asarray(lag_s, float)
+    if Lam.ndim != 2 or Lam.shape[0] != Lam.shape[1] or not np.all(np.isfinite(Lam)):
+        raise ValueError(f"lag_s: expected a finite square matrix, got shape {Lam.shape}")
+    if not (np.isfinite(tau_f_s) and tau_f_s > 0):
+        raise ValueError(f"tau_f_s: expected a time > 0 [s], got {tau_f_s!r}")
+    n = Lam.shape[0]
+    lam = float(np.max(np.diag(Lam)))
+    M = Lam - lam * np.eye(n)
+    D = ct.ss(ct.c2d(ct.tf([1.0, 0.0], [tau_f_s, 1.0]), dt, "tustin"))       # s / (1 + s tau_f)
+    a, b, c, d = (float(np.asarray(m).item()) for m in (D.A, D.B, D.C, D.D))
+    I_n = np.eye(n)
+    F = ct.ss(a * I_n, b * M, c * I_n, d * M + I_n, dt)                      # I + M D(s)
+    return F, lam
+
+
+def equalize_reference_lag(G, K, n_error: int, *, delay_samples: int = IDENTIFIED_DELAY_SAMPLES,
+                           dt: float = DT_S, tau_f_s: float = LAG_FILTER_S):
+    """``(K2, parameters)``: ``K`` (inputs ``[e]`` or ``[e; y]``) with the lag equalizer in its reference path.
+
+    The lag matrix is taken on ``G`` with ``K`` as given (any prefilter already inside it counts);
+    ``parameters`` (JSON-ready) holds the lag matrix before and after [ms] and the common lag.
+    """
+    from nanosim.design.architectures.common import split_2dof
+    before = reference_lag_matrix(G, *split_2dof(K, n_error), delay_samples=delay_samples)
+    F, lam = lag_equalizer(before, dt, tau_f_s)
+    K2 = with_reference_prefilter(K, F, n_error)
+    after = reference_lag_matrix(G, *split_2dof(K2, n_error), delay_samples=delay_samples)
+    params = {"rule": "every axis follows a ramp with the slowest axis's lag and no cross lag: "
+                      "F = I - (lambda I - Lambda) s / (1 + s tau_f), Lambda = -dT_ry/ds at 0 on the identified model",
+              "tau_f_ms": 1e3 * tau_f_s, "common_lag_ms": 1e3 * lam,
+              "lag_matrix_ms": (1e3 * before).tolist(), "lag_matrix_after_ms": (1e3 * after).tolist(),
+              "prefilter_states": int(F.nstates)}
     return K2, params
