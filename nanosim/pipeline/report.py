@@ -352,6 +352,12 @@ def _exported_text(exported: dict, des: dict) -> str:
         text += (f" Reference prefilter (two degrees of freedom, {pf['prefilter_states']} of the states): notches at "
                  f"{notches}, the closed loop's ringing pairs; the feedback loop, its margins and mu are those of "
                  "the design without it.")
+    eq = p.get("reference_lag_equalizer")
+    if eq:
+        lags = ", ".join(f"{v:.3f}" for v in np.diag(eq["lag_matrix_ms"]))
+        text += (f" Lag equalizer ({eq['prefilter_states']} states): the axes' ramp lags on the identified model "
+                 f"({lags} ms) all become the slowest's, {eq['common_lag_ms']:.3f} ms, with no cross lag, so a "
+                 "straight path stays straight.")
     if des.get("architecture_note"):
         text += f" {des['architecture_note']}."
     return text
