@@ -165,3 +165,21 @@ def test_every_architecture_exports_consistent_files(tmp_path, model, name):
     assert int(z["n_error"]) == 3 and z["Bkd"].shape[1] in (3, 6)
     if entries["gamma"] is not None:
         assert float(z["gamma"]) == pytest.approx(entries["gamma"]) and math.isfinite(entries["gamma"])
+
+
+def test_bandwidth_margin_is_the_piezo_gain_ratio_of_the_two_prbs_excursions(model):
+    """BANDWIDTH_MARGIN's source: the Masing secant gain of the piezo at the identification PRBS's excursion
+    (+-0.5 controller V) over the one at the bandwidth experiment's (+-2 um through the identified static gain),
+    rounded to one decimal."""
+    from nanosim.experiments.bandwidth import PRBS_AMPLITUDE_UM
+    from nanosim.experiments.sysid import IdentifySettings
+    from nanosim.plant.piezo import PiezoConfig
+    piezo = PiezoConfig()
+    g = constants.AMPLIFIER_GAIN
+    ident_pp_V = 2 * IdentifySettings().amplitude_V * g
+    um_per_V = constants.SENSOR_UM_PER_V * np.linalg.norm(dc_gain_z(model), axis=0)    # per controller V, per actuator
+    bw_pp_V = 2 * PRBS_AMPLITUDE_UM / um_per_V * g
+    ratio = np.array([piezo.small_signal_gain(ident_pp_V) / piezo.small_signal_gain(v) for v in bw_pp_V])
+    assert np.all(bw_pp_V < ident_pp_V)                      # the loop's excursions are the smaller ones
+    assert_allclose(np.round(ratio, 1), BANDWIDTH_MARGIN)
+    assert_allclose(ratio, 1.09, atol=0.01)
