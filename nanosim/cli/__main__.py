@@ -3,4 +3,5 @@ import sys
 
 from nanosim.cli import main
 
-sys.exit(main())
+if __name__ == "__main__":       # importable (the API reference imports every module) without running
+    sys.exit(main())
