@@ -192,21 +192,6 @@ def robustness_summary(G, K, freq_hz, Ky=None, *, delay_samples: int = 0, dt=Non
                        f_band_hz=None, robust: dict | None = None) -> dict:
     """JSON-serialisable robustness figures of one loop (units in the key names).
 
-    Keys
-    ----
-    ``closed_loop_stable``; ``max_pole_real_per_s`` (continuous) or
-    ``spectral_radius`` (discrete); ``least_damped_zeta``, ``least_damped_freq_hz``;
-    ``peak_<map>`` and ``peak_<map>_freq_hz`` for ``So, To, Si, Ti, KS, KS_fb, SG, T_ry``
-    (sigma_max peaks, refined); ``disk_margin_alpha``, ``gain_margin_db`` ([low, high]),
-    ``phase_margin_deg``, ``disk_margin_freq_hz``, ``disk_margin_location``: the worst
-    multiloop disk margin; ``dm_<input|output|input_output>_*`` for each multiloop
-    margin and ``dm_<input|output>_loop_at_a_time_*`` lists per channel;
-    ``disk_margin_skew``; with ``robust`` (keyword arguments of
-    :func:`robust_stability_mu`, ``G`` as ``G_nominal``): ``mu_peak``,
-    ``mu_peak_freq_hz``, ``mu_lower_peak``, ``mu_robustly_stable``,
-    ``sampled_all_stable``, ``sampled_worst``, ``sampled_worst_parameters``,
-    ``n_parameter_samples``.  Unbounded values (``gmax = inf``) are ``None``.
-
     Parameters
     ----------
     G, K, freq_hz, Ky, delay_samples, dt, skew
@@ -219,6 +204,19 @@ def robustness_summary(G, K, freq_hz, Ky=None, *, delay_samples: int = 0, dt=Non
     Returns
     -------
     dict
+        Keys:
+        ``closed_loop_stable``; ``max_pole_real_per_s`` (continuous) or
+        ``spectral_radius`` (discrete); ``least_damped_zeta``, ``least_damped_freq_hz``;
+        ``peak_<map>`` and ``peak_<map>_freq_hz`` for ``So, To, Si, Ti, KS, KS_fb, SG, T_ry``
+        (sigma_max peaks, refined); ``disk_margin_alpha``, ``gain_margin_db`` ([low, high]),
+        ``phase_margin_deg``, ``disk_margin_freq_hz``, ``disk_margin_location``: the worst
+        multiloop disk margin; ``dm_<input|output|input_output>_*`` for each multiloop
+        margin and ``dm_<input|output>_loop_at_a_time_*`` lists per channel;
+        ``disk_margin_skew``; with ``robust`` (keyword arguments of
+        :func:`robust_stability_mu`, ``G`` as ``G_nominal``): ``mu_peak``,
+        ``mu_peak_freq_hz``, ``mu_lower_peak``, ``mu_robustly_stable``,
+        ``sampled_all_stable``, ``sampled_worst``, ``sampled_worst_parameters``,
+        ``n_parameter_samples``.  Unbounded values (``gmax = inf``) are ``None``.
     """
     loop = PreparedLoop(G, K, Ky, delay_samples, dt, allow_stack=False)
     f = loop.check_freq(freq_hz, increasing=True)
