@@ -47,7 +47,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from nanosim.design.architectures.common import DT_S, IDENTIFIED_DELAY_SAMPLES, mode_groups
+from nanosim.design.architectures.common import DT_S, IDENTIFIED_DELAY_SAMPLES, mode_groups, tf_to_ss
 
 __all__ = ["RingPair", "ringing_pairs", "reference_notch", "matched_notch", "with_reference_prefilter",
            "design_reference_prefilter", "reference_lag_matrix", "lag_equalizer", "equalize_reference_lag",
@@ -62,7 +62,7 @@ GROUP_REL_GAP = 0.05
 # relative offset from a pole at which its residue is evaluated
 RESIDUE_STEP = 1e-6
 # time constant of the lag equalizer's derivative [s]: corner at 160 Hz, below the first pair (~175 Hz)
-# and a sixth of the loop's lag (~5 ms), so the correction is complete over the scan band
+# and a fifth of the loop's lag (~5 ms), so the correction is complete over the scan band
 LAG_FILTER_S = 1e-3
 
 
@@ -293,7 +293,7 @@ def lag_equalizer(lag_s, dt: float = DT_S, tau_f_s: float = LAG_FILTER_S):
     n = Lam.shape[0]
     lam = float(np.max(np.diag(Lam)))
     M = Lam - lam * np.eye(n)
-    D = ct.ss(ct.c2d(ct.tf([1.0, 0.0], [tau_f_s, 1.0]), dt, "tustin"))       # s / (1 + s tau_f)
+    D = tf_to_ss([1.0, 0.0], [tau_f_s, 1.0], dt)                             # s / (1 + s tau_f)
     a, b, c, d = (float(np.asarray(m).item()) for m in (D.A, D.B, D.C, D.D))
     I_n = np.eye(n)
     F = ct.ss(a * I_n, b * M, c * I_n, d * M + I_n, dt)                      # I + M D(s)
@@ -313,7 +313,8 @@ def equalize_reference_lag(G, K, n_error: int, *, delay_samples: int = IDENTIFIE
     K2 = with_reference_prefilter(K, F, n_error)
     after = reference_lag_matrix(G, *split_2dof(K2, n_error), delay_samples=delay_samples)
     params = {"rule": "every axis follows a ramp with the slowest axis's lag and no cross lag: "
-                      "F = I - (lambda I - Lambda) s / (1 + s tau_f), Lambda = -dT_ry/ds at 0 on the identified model",
+                      "F = I - (lambda I - Lambda) s / (1 + s tau_f), "
+                      "Lambda = -T_0^-1 dT_ry/ds at 0 on the identified model",
               "tau_f_ms": 1e3 * tau_f_s, "common_lag_ms": 1e3 * lam,
               "lag_matrix_ms": (1e3 * before).tolist(), "lag_matrix_after_ms": (1e3 * after).tolist(),
               "prefilter_states": int(F.nstates)}
