@@ -39,6 +39,7 @@ PAPER_SAMPLE_RATE_HZ = 4000.0
 
 # --- identification (Sec. 3, Fig. 4a): a step, then PRBS in three bands of 1 s each, at most 0.5 V ----------
 PAPER_PRBS_BANDS_HZ = (50.0, 100.0, 200.0)
+PAPER_PRBS_AMPLITUDE_V = 0.5         # the excitation's largest command [controller V]
 
 # --- identified modes (Sec. 3, Fig. 5) ---------------------------------------
 PAPER_MODES_HZ = (175.0, 179.0, 245.0, 460.0, 474.0, 740.0)
@@ -105,6 +106,7 @@ PAPER_REDUCTION_ERROR_MAX_DB_BELOW_140HZ = -20.0
 
 # --- the closed-loop experiments (Sec. 5) -----------------------------------------
 PAPER_STEP_UM = 2.0                  # the step of Fig. 18c (the "step_2um" metrics)
+PAPER_SETTLING_BAND = 0.02           # the step's settling band, a fraction of the step (Fig. 18c)
 PAPER_CONTOUR_SPEED_UM_S = 1000.0    # the contour speed of the errors quoted for Fig. 20
 
 # Figures quoted in Secs. 4-5 (units in the comment). Keys are used by the report.

@@ -16,6 +16,7 @@ from typing import Callable
 import numpy as np
 
 from nanosim import constants as C
+from nanosim.paper import PAPER_SETTLING_BAND
 from nanosim.design.controller import DiscreteController
 from nanosim.design.feedforward import (
     FEEDFORWARD_CHOICES,
@@ -268,11 +269,15 @@ def plateaus(y, dwell: int, count: int):
 
 
 def step_metrics(t_s, y, final):
-    """Rise (10-90 %), peak and 2 % settling times (ms) and overshoot (%) of ``y`` normalised by ``final``."""
+    """Rise (10-90 %), peak and settling times (ms) and overshoot (%) of ``y`` normalised by ``final``.
+
+    Settling: the first time after which ``y`` stays within :data:`nanosim.paper.PAPER_SETTLING_BAND` (2 %)
+    of ``final``.
+    """
     y = y / final
     rise = t_s[np.argmax(y >= 0.9)] - t_s[np.argmax(y >= 0.1)]
     ipk = int(np.argmax(y))
-    outside = np.flatnonzero(np.abs(y - 1) > 0.02)
+    outside = np.flatnonzero(np.abs(y - 1) > PAPER_SETTLING_BAND)
     if not len(outside):
         settle = t_s[0]
     elif outside[-1] + 1 < len(t_s):

@@ -24,7 +24,7 @@ import numpy as np
 import identification as ident
 from nanosim import constants as C
 from nanosim.design.lti import single_threaded_blas
-from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN
+from nanosim.paper import PAPER_IDENTIFIED_ORDER_PER_COLUMN, PAPER_PRBS_AMPLITUDE_V
 from nanosim.plant.noise import stream_seed
 from nanosim.plant.stage import StageConfig, Trace, run_open_loop_batch
 from nanosim.ramps import raised_cosine
@@ -42,7 +42,7 @@ class IdentifySettings:
 
     seed: int = 0
     order_per_column: int | None = PAPER_IDENTIFIED_ORDER_PER_COLUMN
-    amplitude_V: float = 0.5
+    amplitude_V: float = PAPER_PRBS_AMPLITUDE_V
     offset_piezo_V: float = 0.0          # operating point (paper: 0 V and 80 V)
     settle_s: float = 1.5                # ramp to the operating point and settle
     ideal: bool = False                  # every electromechanical effect off

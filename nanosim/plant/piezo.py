@@ -473,6 +473,21 @@ class PiezoConfig:
         r = np.asarray(self.pi_thresholds_V)
         return float((w0 * a + np.maximum(a - 2.0 * r, 0.0) @ w) / a)
 
+    def branch_slope(self, excursion_piezo_V: float) -> float:
+        """Athermal incremental gain at the end of a branch of ``excursion_piezo_V`` after a reversal.
+
+        The derivative of :meth:`small_signal_gain`'s branch ``w0 * d + sum_i w_i * max(d - 2 r_i, 0)``:
+        ``w0 + sum_(2 r_i < d) w_i``. It grows from the tangent ``w0`` as the excursion engages
+        operators, so a step ends on a steeper slope than it started. Returns 1 if hysteresis is off.
+        """
+        d = float(excursion_piezo_V)
+        if not np.isfinite(d) or d < 0:
+            raise ValueError(f"excursion_piezo_V: expected a finite value >= 0, got {excursion_piezo_V}")
+        if not self.hysteresis:
+            return 1.0
+        w0, w = self.hysteresis_weights()
+        return float(w0 + w[2.0 * np.asarray(self.pi_thresholds_V) < d].sum())
+
     def creep_dc_gain(self) -> float:
         """DC gain of the Kelvin-Voigt filter (1 if normalised or not running)."""
         if not self.linear_creep:
