@@ -10,7 +10,7 @@ import numpy as np
 from nanosim import constants as C
 from nanosim.fileio import write_text
 from nanosim import paper as P
-from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S
+from nanosim.paper import PAPER, PAPER_CONTOUR_SPEED_UM_S, PAPER_STEP_UM
 from nanosim.pipeline import artifacts as A
 from nanosim.pipeline.blocks import EM, to_html, to_markdown
 
@@ -358,6 +358,16 @@ def _exported_text(exported: dict, des: dict) -> str:
         text += (f" Lag equalizer ({eq['prefilter_states']} states): the axes' ramp lags on the identified model "
                  f"({lags} ms) all become the slowest's, {eq['common_lag_ms']:.3f} ms, with no cross lag, so a "
                  "straight path stays straight.")
+    st = p.get("reference_step_filter")
+    if st:
+        m = st["piezo_step_model"]
+        parts = "; ".join(f"{''.join(f['axes'])}: zeros {f['fz_hz']:.0f} Hz (zeta {f['zeta_z']:.2f}), poles "
+                          f"{f['fp_hz']:.0f} Hz (zeta {f['zeta_p']:.2f})" for f in st["filters"])
+        text += (f" Step filter ({st['prefilter_states']} states; {parts}): shapes the {PAPER_STEP_UM:g} um step for "
+                 f"the piezo it drives, a {m['step_piezo_V']:.1f} V excursion at gains "
+                 f"{m['gains'][0]:.3f}-{m['gains'][-1]:.3f} of the identified model's with "
+                 f"{100 * m['creep_per_decade']:.1f} % creep per decade; predicted worst settling on that model "
+                 f"{st['predicted_settling_ms_worst']:.2f} ms, overshoot at most {st['overshoot_limit_percent']:g} %.")
     if des.get("architecture_note"):
         text += f" {des['architecture_note']}."
     return text

@@ -61,7 +61,10 @@ the closed loop's ringing pairs (:func:`nanosim.design.architectures.prefilter.d
 the pairs of ``T_ry`` with ``zeta < 0.1`` above 100 Hz that carry at least 1 % of a step, zeros on the
 pair and pole damping 0.7, the same filter on every axis), then equalizes the axes' ramp lags to the
 slowest axis's (:func:`nanosim.design.architectures.prefilter.equalize_reference_lag`), so that a
-straight path stays straight on the identified model. The damped first pair would otherwise
+straight path stays straight on the identified model, and last shapes the step for the piezo it drives
+(:func:`nanosim.design.architectures.step_filter.design_step_filter`: a second-order filter per group of
+axes, X and Y sharing one, that settles the paper's 2 um step fastest on the identified model with the
+piezo's gain band and creep for that step). The damped first pair would otherwise
 ring through the 2 % band of a step for several of its decay times ``1 / (zeta w)``; feedback, margins, mu and noise are
 those of ``K`` alone. The S bandwidth is the feedback loop's, ``(I + G K)^-1``
 (:func:`nanosim.experiments.bandwidth.bandwidth` measures it so); ``reference_prefilter=False``
@@ -140,7 +143,8 @@ TUNING_RULE = ("four-block H-infinity (S, SG, KS, T; Skogestad & Postlethwaite S
                "and the DAC + amplifier input noise; the paper's Wp moved up in frequency by the smallest "
                f"factor whose predicted S bandwidth meets {BANDWIDTH_MARGIN:g} x the paper's 32 Hz; gamma 1.1 x the "
                "smallest verified; Tustin "
-               "both ways; the reference notched at the closed loop's ringing pairs, u = K (F r - y)")
+               "both ways; the reference notched at the closed loop's ringing pairs, its ramp lags equalized and "
+               "its step shaped for the piezo's gain band and creep, u = K (F r - y)")
 
 
 def input_noise_V() -> float:
@@ -530,8 +534,10 @@ def design_hinf_fourblock(G, *, dt: float = DT_S, delay_samples: int = IDENTIFIE
         params["reference_prefilter"] = None
         return BenchDesign("hinf", Kd, ny, TUNING_RULE, params)
     from nanosim.design.architectures.prefilter import design_reference_prefilter, equalize_reference_lag
+    from nanosim.design.architectures.step_filter import design_step_filter
     K2, prefilter = design_reference_prefilter(Gd, Kd, ny, delay_samples=delay_samples, dt=dt)
     K3, lag = equalize_reference_lag(Gd, K2, ny, delay_samples=delay_samples, dt=dt)
-    params.update({"controller_order": int(K3.nstates), "feedback_order": int(Kd.nstates),
-                   "reference_prefilter": prefilter, "reference_lag_equalizer": lag})
-    return BenchDesign("hinf", K3, ny, TUNING_RULE, params)
+    K4, step = design_step_filter(Gd, K3, ny, delay_samples=delay_samples, dt=dt)
+    params.update({"controller_order": int(K4.nstates), "feedback_order": int(Kd.nstates),
+                   "reference_prefilter": prefilter, "reference_lag_equalizer": lag, "reference_step_filter": step})
+    return BenchDesign("hinf", K4, ny, TUNING_RULE, params)
