@@ -56,6 +56,15 @@ def test_charge_drive_leaves_about_its_residual_fraction_of_the_loop(cases):
     assert q.open_travel_um[0] == pytest.approx(v.open_travel_um[0], rel=0.03)
 
 
+def test_feedforward_on_the_charge_drive_removes_most_of_what_the_charge_amplifier_leaves(cases):
+    """The operator identified on the charge-driven twin inverts the hysteresis the charge amplifier leaves
+    (its residual above the crossover, all of it below): the loop narrows further, the travel stays."""
+    q, qf = cases["charge"].hysteresis, cases["charge_feedforward"].hysteresis
+    assert qf.open_loop_percent <= 0.5 * q.open_loop_percent
+    assert qf.open_loop_percent <= 3.0
+    assert qf.open_travel_um[0] == pytest.approx(q.open_travel_um[0], rel=0.1)
+
+
 def test_closed_loop_errors_with_the_compensations(cases):
     """The fast contour error is mostly rate-dependent hysteresis: the charge drive lowers it; the feedforward
     linearises the actuator behind the controller, so the slow triangle is tracked better."""
@@ -85,13 +94,13 @@ def test_json_states_the_twin_and_a_unit_for_every_number(run, cases):
     doc = json.loads((run / A.COMPENSATION_JSON).read_text())
     assert "linear twin" in doc["plant"] and "every effect on" in doc["plant"]
     assert doc["seed"] == 0 and doc["loop_protocol"]["hold_s"] > 0
-    assert list(doc["cases"]) == ["voltage", "voltage_feedforward", "charge"]
+    assert list(doc["cases"]) == ["voltage", "voltage_feedforward", "charge", "charge_feedforward"]
     keys = {k for k, _ in _numbers(doc)}
     assert keys and not keys - set(doc["units"]), keys - set(doc["units"])
     assert doc["cases"]["voltage"]["open_loop_output_ratio"] == 1.0
     assert doc["cases"]["charge"]["open_loop_output_percent"] == cases["charge"].hysteresis.open_loop_percent
     timing = json.loads((run / A.TIMINGS_JSON).read_text())["files"][A.COMPENSATION_JSON]["case_seconds"]
-    assert set(timing) == {"voltage", "voltage_feedforward", "charge", "write"}
+    assert set(timing) == {"voltage", "voltage_feedforward", "charge", "charge_feedforward", "write"}
     assert (run / A.FIG_COMPENSATION).is_file() and A.figure(A.FIG_COMPENSATION).step == "compensation"
 
 
@@ -102,7 +111,8 @@ def test_report_renders_the_section_with_its_table_and_figure_once(run):
     text, page = md.read_text(), html.read_text()
     assert "## Hysteresis compensation" in text and "<h2>Hysteresis compensation</h2>" in page
     section = text.split("\n## Hysteresis compensation\n")[1].split("\n## ")[0]
-    for label in ("| voltage drive |", "| voltage drive + inverse-PI feedforward |", "| charge drive |"):
+    for label in ("| voltage drive |", "| voltage drive + inverse-PI feedforward |", "| charge drive |",
+                  "| charge drive + inverse-PI feedforward |"):
         assert label in section
     assert "open-loop output hysteresis (%)" in section and "contour mean at 1000 um/s (nm)" in section
     assert f"]({A.FIG_COMPENSATION})" in section

@@ -9,14 +9,15 @@ experiment functions as ``nanosim characterize --twin``:
 * ``voltage_feedforward``: the inverse Prandtl-Ishlinskii feedforward, its operator identified on the
   voltage-driven twin first (:func:`~nanosim.experiments.loop.fit_feedforward`, once, shared by the
   experiments of the case; what ``--feedforward inverse-pi`` does per experiment);
-* ``charge``: the charge amplifier (``ElectronicsConfig(drive="charge")``, ``--drive charge``).
+* ``charge``: the charge amplifier (``ElectronicsConfig(drive="charge")``, ``--drive charge``);
+* ``charge_feedforward``: both, the operator identified on the charge-driven twin (what the feedforward
+  meets there is the hysteresis the charge amplifier leaves: its residual above the crossover and all of
+  it below; ``--drive charge --feedforward inverse-pi``).
 
 Each case runs the ``hysteresis`` experiment (Fig. 14: the open-loop loop, output and input hysteresis,
 and the closed-loop one), the ``contouring`` experiment at the paper's 1000 um/s only, and the
 ``tracking`` experiment at :data:`TRACKING_FREQS_HZ`, every closed-loop record from the stated
-:data:`~nanosim.experiments.loop.LOOP_PROTOCOL` start. The charge drive and the feedforward together
-would need a second identification, on the charge-driven stage (``nanosim characterize --drive charge
---feedforward inverse-pi``); the step leaves that combination out to stay cheap.
+:data:`~nanosim.experiments.loop.LOOP_PROTOCOL` start.
 """
 from __future__ import annotations
 
@@ -37,7 +38,8 @@ __all__ = ["CASES", "TRACKING_FREQS_HZ", "COMPENSATION_UNITS", "CompensationCase
 # (key, drive, feedforward, label) of every case, in the order of the JSON, the table and the figure
 CASES = (("voltage", "voltage", None, "voltage drive"),
          ("voltage_feedforward", "voltage", "inverse-pi", "voltage drive + inverse-PI feedforward"),
-         ("charge", "charge", None, "charge drive"))
+         ("charge", "charge", None, "charge drive"),
+         ("charge_feedforward", "charge", "inverse-pi", "charge drive + inverse-PI feedforward"))
 # the tracking experiment's frequencies the step runs (its triangle and sine at each): the slowest and the
 # fastest of the experiment's default 5-40 Hz, both in its definition
 TRACKING_FREQS_HZ = (5.0, 40.0)
@@ -146,12 +148,12 @@ def compensation_doc(cases: list[CompensationCase], *, seed: int, controller: st
         "experiments": "hysteresis (Fig. 14), contouring at 1000 um/s (Fig. 20), tracking (Fig. 19) at "
                        + ", ".join(f"{f:g}" for f in TRACKING_FREQS_HZ) + " Hz, as nanosim characterize --twin",
         "loop_protocol": LOOP_PROTOCOL.describe(),
-        "feedforward": {"kind": "inverse-pi", "identified_on": "the voltage-driven twin, before the case's "
-                                                               "experiments (fit_feedforward)",
+        "feedforward": {"kind": "inverse-pi", "identified_on": "the case's twin (voltage- or charge-driven), before "
+                                                               "the case's experiments (fit_feedforward)",
                         "feedforward_fit_s": travel / FIT_RATE_V_PER_S},
         "charge_drive": {"charge_residual_fraction": e.charge_residual, "charge_crossover_hz": e.charge_crossover_Hz,
-                         "with_feedforward": "not run (a second identification, on the charge-driven stage: "
-                                             "nanosim characterize --drive charge --feedforward inverse-pi)"},
+                         "with_feedforward": "the case charge_feedforward (the operator identified on the "
+                                             "charge-driven twin)"},
         "cases": doc_cases,
         "units": dict(COMPENSATION_UNITS),
     }
@@ -213,10 +215,10 @@ def report_blocks(run) -> list:
                  f"{doc.get('seed')}, with the bench's voltage amplifier, with the inverse Prandtl-Ishlinskii "
                  f"feedforward (identified on the twin first: nanosim characterize --feedforward inverse-pi) and "
                  f"with the charge amplifier (residual fraction {_f(ch.get('charge_residual_fraction'))}, crossover "
-                 f"{_f(ch.get('charge_crossover_hz'))} Hz: nanosim characterize --drive charge). Experiments: "
+                 f"{_f(ch.get('charge_crossover_hz'))} Hz: nanosim characterize --drive charge), and with both (the "
+                 f"feedforward identified on the charge-driven twin). Experiments: "
                  f"{doc.get('experiments')}; every closed-loop record from the stated protocol (approach "
-                 f"{_f(proto.get('approach_s'))} s, hold {_f(proto.get('hold_s'))} s). The charge drive with the "
-                 f"feedforward is {ch.get('with_feedforward', 'not run')}. Numbers and units: "
+                 f"{_f(proto.get('approach_s'))} s, hold {_f(proto.get('hold_s'))} s). Numbers and units: "
                  f"{A.COMPENSATION_JSON}; the Sec. 5 tables above are the voltage drive without compensation."),
            ("table", header, rows, None),
            ("fig", "Hysteresis compensation on the linear twin: the Fig. 14 open-loop loops and the errors per case",
