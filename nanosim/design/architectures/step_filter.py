@@ -239,8 +239,8 @@ def design_step_filter(G, K, n_error: int, *, model: PiezoStepModel | None = Non
     n = int(round(STEP_RECORD_S / dt))
     Y = _step_set(G, *split_2dof(K, n_error), m, delay_samples, n).reshape(len(m.gains), n_error, n)
 
-    def settle(ys, band=PAPER_SETTLING_BAND):
-        return np.array([settling_time_s(y, dt, band) for y in ys])
+    def settle(ys):
+        return np.array([settling_time_s(y, dt) for y in ys])
 
     overshoot_limit = OVERSHOOT_BAND_FRACTION * PAPER_SETTLING_BAND
     filters, rows = [], []
