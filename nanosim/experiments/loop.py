@@ -16,7 +16,6 @@ from typing import Callable
 import numpy as np
 
 from nanosim import constants as C
-from nanosim.paper import PAPER_SETTLING_BAND
 from nanosim.design.controller import DiscreteController
 from nanosim.design.feedforward import (
     FEEDFORWARD_CHOICES,
@@ -26,6 +25,7 @@ from nanosim.design.feedforward import (
     fit_prandtl_ishlinskii,
     fit_thresholds_V,
 )
+from nanosim.paper import PAPER_SETTLING_BAND
 
 __all__ = ["FS", "UM_PER_V", "LoopTrace", "run_closed_loop", "StageFactory", "plateaus", "step_metrics",
            "INTERPOLATION_S", "interpolate", "LoopProtocol", "LOOP_PROTOCOL", "start_controller",

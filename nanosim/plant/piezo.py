@@ -196,6 +196,14 @@ def _as_float_tuple(name: str, value) -> tuple[float, ...]:
     return tuple(float(x) for x in arr)
 
 
+def _excursion_V(name: str, value) -> float:
+    """``value`` as a float excursion [V]: finite and >= 0, else a ValueError naming ``name``."""
+    v = float(value)
+    if not np.isfinite(v) or v < 0:
+        raise ValueError(f"{name}: expected a finite value >= 0, got {value}")
+    return v
+
+
 def _optional_positive(name: str, value):
     if value is None:
         return None
@@ -462,9 +470,7 @@ class PiezoConfig:
         the gain at frequencies above the inverse age of the reversal).
         Hysteresis only; returns 1 if hysteresis is off.
         """
-        a = float(amplitude_piezo_V)
-        if not np.isfinite(a) or a < 0:
-            raise ValueError(f"amplitude_piezo_V: expected a finite value >= 0, got {amplitude_piezo_V}")
+        a = _excursion_V("amplitude_piezo_V", amplitude_piezo_V)
         if not self.hysteresis:
             return 1.0
         w0, w = self.hysteresis_weights()
@@ -480,9 +486,7 @@ class PiezoConfig:
         ``w0 + sum_(2 r_i < d) w_i``. It grows from the tangent ``w0`` as the excursion engages
         operators, so a step ends on a steeper slope than it started. Returns 1 if hysteresis is off.
         """
-        d = float(excursion_piezo_V)
-        if not np.isfinite(d) or d < 0:
-            raise ValueError(f"excursion_piezo_V: expected a finite value >= 0, got {excursion_piezo_V}")
+        d = _excursion_V("excursion_piezo_V", excursion_piezo_V)
         if not self.hysteresis:
             return 1.0
         w0, w = self.hysteresis_weights()
