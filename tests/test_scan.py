@@ -134,8 +134,40 @@ def test_perfect_trajectory_reproduces_the_truth(name):
     assert m["image_error_fraction"] < (5e-3 if name == "raster" else 1e-2), m
     cover = {"raster": 1.0, "lissajous": 1.0, "spiral": np.pi / 4, "rosette": np.pi / 4}[name]
     assert m["coverage_fraction"] == pytest.approx(cover, abs=0.03)
+    # the image reaches nearly every covered pixel: only the rim between turnarounds is left out
+    assert m["imaged_fraction"] > 0.97, m
     if name == "raster":
         assert abs(res.trace_retrace_offset_um) < 0.02 * p.pitch_um
+
+
+def test_form_image_is_exact_for_a_plane_and_does_not_bridge_gaps():
+    """A height linear in x and y is imaged exactly wherever the records reach (cell means and linear
+    interpolation are exact for a plane); between two bands of records farther apart than
+    MAX_EDGE_PIXELS pitches nothing is imaged, next to them everything is."""
+    size, px = 10.0, 64
+    p = size / px
+    x = np.linspace(0.0, size, 4001)
+
+    def band(y0, y1):                                   # records on every pixel row from y0 to y1, dense in x
+        rows = np.arange(y0, y1 + 1e-9, p)
+        return np.column_stack([np.tile(x, rows.size), np.repeat(rows, x.size)])
+
+    xy = np.concatenate([band(0.0, 3.0), band(7.0, size)])
+    h = 3.0 * xy[:, 0] - 2.0 * xy[:, 1] + 5.0
+    img = S.form_image(xy, h, size, px)
+    X, Y = np.meshgrid((np.arange(px) + 0.5) * p, (np.arange(px) + 0.5) * p)
+    ok = np.isfinite(img)
+    np.testing.assert_allclose(img[ok], (3.0 * X - 2.0 * Y + 5.0)[ok], rtol=0, atol=1e-9)
+    gap = (Y > 3.0) & (Y < 7.0)                         # 4 um = 25.6 pitches between the bands
+    assert not ok[gap].any()
+    inner = (X > p) & (X < size - p) & ~gap & (Y > p) & (Y < size - p)     # pixel centres inside a band
+    assert ok[inner].all()
+    # the same gap narrower than MAX_EDGE_PIXELS pitches is bridged
+    xy2 = np.concatenate([band(0.0, 3.0), band(3.0 + 2 * p, size)])
+    img2 = S.form_image(xy2, 3.0 * xy2[:, 0] - 2.0 * xy2[:, 1] + 5.0, size, px)
+    assert np.isfinite(img2[(X > p) & (X < size - p) & (Y > p) & (Y < size - p)]).all()
+    with pytest.raises(ValueError, match="max_edge_pixels"):
+        S.form_image(xy, h, size, px, max_edge_pixels=0.0)
 
 
 def test_pure_delay_gives_trace_retrace_offset_two_v_tau():

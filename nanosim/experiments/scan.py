@@ -145,24 +145,35 @@ def _pixel_centres(size_um: float, pixels: int):
     return np.meshgrid(c, c)
 
 
+# The longest triangle edge (in pixel pitches) the image interpolates across. Every pattern spaces its
+# lines one pitch apart, so within a covered region neighbouring cell means are at most two cells and a
+# diagonal apart (2 sqrt 2 pitches); a longer edge bridges a gap the records do not cover (at the convex
+# hull, between a Lissajous's or a rosette's turnarounds), where a linear interpolation over microns of a
+# grating is no image of it.
+MAX_EDGE_PIXELS = 3.0
+
+
 def form_image(xy_um: np.ndarray, height_nm: np.ndarray, size_um: float, pixels: int,
-               margin: int = 4) -> np.ndarray:
+               margin: int = 4, max_edge_pixels: float = MAX_EDGE_PIXELS) -> np.ndarray:
     """Resample heights recorded at ``xy_um`` (M, 2) onto the pixel centres (row = Y), nm.
 
     The records are first averaged per pixel cell (their mean position and mean height, cells
     ``margin`` pixels beyond the field included), then interpolated linearly on the Delaunay
-    triangulation of those cell means (:func:`scipy.interpolate.griddata`); NaN outside their
-    convex hull. For a height linear across a cell the cell mean is exact; the averaging bounds the
-    triangulation at one point per cell. Records in fewer than three cells, or all on one line,
-    give an image of NaN.
+    triangulation of those cell means (:class:`scipy.interpolate.LinearNDInterpolator`). A pixel is
+    imaged only inside a triangle whose edges are at most ``max_edge_pixels`` pitches long: NaN outside
+    the convex hull and where a longer triangle bridges a gap between the records. For a height linear
+    across a cell the cell mean is exact; the averaging bounds the triangulation at one point per cell.
+    Records in fewer than three cells, or all on one line, give an image of NaN.
     """
-    from scipy.interpolate import griddata
-    from scipy.spatial import QhullError
+    from scipy.interpolate import LinearNDInterpolator
+    from scipy.spatial import Delaunay, QhullError
 
     xy = np.asarray(xy_um, float)
     h = np.asarray(height_nm, float)
     if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) != len(h):
         raise ValueError(f"xy_um: expected shape (M, 2) with M = len(height_nm) = {len(h)}, got {xy.shape}")
+    if not np.isfinite(max_edge_pixels) or max_edge_pixels <= 0:
+        raise ValueError(f"max_edge_pixels: expected a finite number > 0, got {max_edge_pixels!r}")
     p = size_um / pixels
     ij = np.floor(xy / p).astype(np.int64) + margin
     side = pixels + 2 * margin
@@ -172,10 +183,18 @@ def form_image(xy_um: np.ndarray, height_nm: np.ndarray, size_um: float, pixels:
     occ = cnt > 0
     X, Y = _pixel_centres(size_um, pixels)
     means = [np.bincount(flat, v, side * side)[occ] / cnt[occ] for v in (xy[inside, 0], xy[inside, 1], h[inside])]
+    pts = np.column_stack(means[:2])
     try:
-        return griddata(np.column_stack(means[:2]), means[2], (X, Y), method="linear")
+        tri = Delaunay(pts)
     except (ValueError, QhullError):        # records in fewer than 3 cells, or on one line: nothing to image
         return np.full(X.shape, np.nan)
+    q = np.column_stack([X.ravel(), Y.ravel()])
+    img = LinearNDInterpolator(tri, means[2])(q)
+    corners = pts[tri.simplices]                                          # (triangles, 3, 2)
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    simplex = tri.find_simplex(q)
+    img[(simplex < 0) | (longest[simplex] > max_edge_pixels * p)] = np.nan
+    return img.reshape(X.shape)
 
 
 def coverage_mask(xy_um: np.ndarray, size_um: float, pixels: int) -> np.ndarray:
@@ -227,13 +246,18 @@ def trace_retrace_offset_um(trace_nm: np.ndarray, retrace_nm: np.ndarray, pitch_
 
 @dataclass(frozen=True)
 class ScanImage:
-    """Image of one set of records: the image, its error against the truth and its summary (nm)."""
+    """Image of one set of records: the image, its error against the truth and its summary (nm).
+
+    ``imaged_fraction`` is the share of the covered pixels (the result's ``mask``) the image reaches;
+    the error rms, max and fraction are over those.
+    """
 
     image_nm: np.ndarray
     error_nm: np.ndarray
     rms_error_nm: float
     max_error_nm: float
     error_fraction: float
+    imaged_fraction: float
 
 
 @dataclass(frozen=True)
@@ -296,7 +320,7 @@ class ScanResult:
              "freqs_hz": list(p.freqs_hz), "coverage_fraction": float(self.mask.mean()),
              "height_range_nm": self.height_range_nm,
              "image_error_rms_nm": self.image.rms_error_nm, "image_error_max_nm": self.image.max_error_nm,
-             "image_error_fraction": self.image.error_fraction,
+             "image_error_fraction": self.image.error_fraction, "imaged_fraction": self.image.imaged_fraction,
              "position_error_rms_nm": self.position_rms_nm, "position_error_max_nm": self.position_max_nm,
              "distortion_max_nm": float(1e3 * np.nanmax(np.hypot(self.distortion_um[..., 0],
                                                                   self.distortion_um[..., 1]))),
@@ -348,21 +372,20 @@ def raster_image(x_um: np.ndarray, height_nm: np.ndarray, line: np.ndarray, keep
 
 
 def _summary(img, truth, mask, rng_nm) -> ScanImage:
+    """The image's errors over the covered pixels it reaches; covered pixels it does not reach are
+    missing (``imaged_fraction``), not in the rms.
+    """
     err = img - truth
-    e = err[mask & np.isfinite(err)]
+    reached = mask & np.isfinite(err)
+    e = err[reached]
     rms = float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
     mx = float(np.abs(e).max()) if e.size else float("nan")
-    return ScanImage(img, err, rms, mx, rms / rng_nm if rng_nm > 0 else float("nan"))
+    imaged = float(reached.sum() / mask.sum()) if mask.any() else float("nan")
+    return ScanImage(img, err, rms, mx, rms / rng_nm if rng_nm > 0 else float("nan"), imaged)
 
 
 def _image(xy, h, keep, truth, mask, size_um, pixels, rng_nm) -> ScanImage:
-    img = form_image(xy[keep], h[keep], size_um, pixels)
-    err = img - truth
-    e = err[mask & np.isfinite(err)]
-    rms = float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
-    mx = float(np.abs(e).max()) if e.size else float("nan")
-    # pixels the pattern covers but the record does not reach count as missing: not in the rms
-    return ScanImage(img, err, rms, mx, rms / rng_nm if rng_nm > 0 else float("nan"))
+    return _summary(form_image(xy[keep], h[keep], size_um, pixels), truth, mask, rng_nm)
 
 
 def _pixel_stats(xy, e_um, size_um, pixels):

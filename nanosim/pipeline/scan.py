@@ -275,16 +275,17 @@ def _blocks(doc: dict, level: int = 2) -> list:
                  f"{doc['plant']}, seed {doc['seed']}, controller {Path(doc['controller']).name}. The sample (a "
                  "grating of square pillars and a rough surface) is seen at the table's true position and placed "
                  f"at the {'commanded position' if doc['placement'] == 'reference' else 'sensor reading'}; the "
-                 "image error is the rms of image - truth over the pixels the pattern covers, as a fraction of the "
+                 "image error is the rms of image - truth over the pixels the pattern covers and the image reaches "
+                 "(imaged: not across a gap of more than three pixels between records), as a fraction of the "
                  f"truth's height range; the line rate at the limit is where it reaches {lim:g} % (sweep "
                  f"{', '.join(_fmt(r) for r in doc['sweep_hz'])} Hz on the {doc.get('sweep_plant') or 'n/a'})."),
            ("table", ["pattern", "image error rms (nm)", "of height range (%)", "position error rms / max (nm)",
-                      "distortion max (nm)", "trace/retrace offset (nm)", "coverage (%)",
+                      "distortion max (nm)", "trace/retrace offset (nm)", "coverage (%)", "imaged (%)",
                       f"line rate at {lim:g} % (Hz)"],
             [[m["label"], _fmt(m["image_error_rms_nm"]), _pct(m["image_error_fraction"]),
               f"{_fmt(m['position_error_rms_nm'])} / {_fmt(m['position_error_max_nm'])}",
-              _fmt(m["distortion_max_nm"]), _fmt(m["trace_retrace_offset_nm"]),
-              _pct(m["coverage_fraction"]), _limit_text(m)] for m in pats.values()], None)]
+              _fmt(m["distortion_max_nm"]), _fmt(m["trace_retrace_offset_nm"]), _pct(m["coverage_fraction"]),
+              _pct(m.get("imaged_fraction")), _limit_text(m)] for m in pats.values()], None)]
     return out
 
 
