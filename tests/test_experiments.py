@@ -7,7 +7,7 @@ from numpy.testing import assert_allclose
 
 from nanosim.design.lti import crossing_hz
 from nanosim.experiments.contouring import (CONDITIONING_S, conditioning_cycles, contour_error_nm, contour_reference,
-                                            contouring)
+                                            contouring, ramp_lags_ms)
 from nanosim.experiments.loop import run_closed_loop, step_metrics
 from nanosim.experiments.small_steps import small_steps
 from nanosim.plant.twin import TwinStage
@@ -59,6 +59,29 @@ def test_contour_error_is_the_distance_to_the_45_degree_line():
     d, moving = contour_error_nm(ref, y)
     assert_allclose(d, d_nm, rtol=1e-9)
     assert moving.sum() == np.count_nonzero((ref[:, 0] > 0.5) & (ref[:, 0] < 19.5))
+
+
+def test_ramp_lags_of_delayed_axes_and_the_contour_error_they_give():
+    """Axes delayed by 4.5 ms and 4.55 ms: lags 4.5 / 4.55 ms, and on the 1000 um/s line a distance to the
+    path of (lag_x - lag_y) v / 2 = 25 nm while both move at constant speed."""
+    ref = contour_reference(1000.0)
+    fs = 4000.0
+
+    def delayed(x, d_s):                             # x(t - d): exact delay, linear between samples
+        t = np.arange(len(x)) / fs
+        return np.interp(t - d_s, t, x, left=x[0])
+
+    y = ref.copy()
+    y[:, 0], y[:, 1] = delayed(ref[:, 0], 4.5e-3), delayed(ref[:, 1], 4.55e-3)
+    d, moving = contour_error_nm(ref, y)
+    lag_x, lag_y = ramp_lags_ms(ref, y, moving, fs)
+    assert_allclose([lag_x, lag_y], [4.5, 4.55], rtol=2e-3)
+    speed = np.hypot(*np.gradient(ref[:, :2], axis=0).T) * fs
+    const = np.abs(speed - speed.max()) < 0.01 * speed.max()
+    steady = const & np.roll(const, 20) & np.roll(const, -20)     # ramps whose delayed copies are ramps too
+    dist_nm = np.abs(y[:, 0] - y[:, 1]) / np.sqrt(2) * 1e3
+    assert steady.sum() > 100
+    assert_allclose(dist_nm[steady], 0.05e-3 * 1000.0 / 2 * 1e3, rtol=0.02)
 
 
 def test_conditioning_cycles_cover_the_conditioning_time():

@@ -43,7 +43,7 @@ from nanosim.plant.noise import stream_seed
 from nanosim.plots.experiments import fig_contouring
 
 __all__ = ["ContourCase", "contour_reference", "contouring", "conditioning_cycles", "contour_error_nm",
-           "CONDITIONING_S"]
+           "ramp_lags_ms", "CONDITIONING_S", "RAMP_SETTLE_S"]
 
 # Repetitions of the path before the recorded cycle: at least one, and at least this long [s]. After about
 # 0.6 s of cycling the 1000 um/s contour error changes by < 5 nm from cycle to cycle
@@ -69,6 +69,14 @@ class ContourCase:
     conditioning_cycles: int = 0
     first_cycle_mean_error_nm: float = float("nan")
     first_cycle_max_error_nm: float = float("nan")
+    ramp_lag_ms: tuple = (float("nan"), float("nan"))
+
+    @property
+    def lag_difference_us(self) -> float:
+        """X lag minus Y lag (us): the recorded cycle's contour error is about this times the speed per axis
+        over sqrt(2).
+        """
+        return 1e3 * (self.ramp_lag_ms[0] - self.ramp_lag_ms[1])
 
 
 def contour_reference(speed_um_s, corner_um=20.0, fs=FS, dwell_s=0.02, smoothing_s=INTERPOLATION_S):
@@ -105,6 +113,38 @@ def contour_error_nm(ref_um, y_um):
     return np.abs(y_um[:, 0] - y_um[:, 1])[moving] / np.sqrt(2) * 1e3, moving
 
 
+# A ramp's error is read as a lag once the reference has run at its constant speed this long [s]: the
+# loop's transient at the corner has settled (2 % settling of the bench's loops: about 10 ms).
+RAMP_SETTLE_S = 0.01
+
+
+def ramp_lags_ms(ref_um, y_um, moving, fs: float = FS, settle_s: float = RAMP_SETTLE_S) -> tuple[float, float]:
+    """Each axis's ramp lag (X, Y; ms): the least-squares ``lag`` of ``ref - y = lag * dref/dt + offset``
+    over the ``moving`` samples at which the reference has run at constant speed for ``settle_s``.
+
+    On a ramp the error of a loop of type one settles to ``v / K_v`` (the velocity constant ``K_v``): a
+    lag. On the 45 degree line both axes move at ``v / sqrt(2)``, so the distance to the path is
+    ``(lag_x - lag_y) v / 2`` plus the offsets' difference: the contour error measures how well the
+    axes' lags match, not how small they are (a 1 % gain difference between the axes' loops moves their
+    lags apart by 1 %). NaN without such samples.
+    """
+    ref_um, y_um = np.asarray(ref_um, float), np.asarray(y_um, float)
+    v = np.gradient(ref_um[:, :2], axis=0) * fs
+    speed = np.hypot(v[:, 0], v[:, 1])
+    const = (speed > 0) & (np.abs(speed - speed.max()) <= 0.01 * speed.max())
+    n = max(1, int(round(settle_s * fs)))
+    held = np.convolve(const.astype(int), np.ones(n, int))[:len(const)] == n     # constant for the last n samples
+    m = np.asarray(moving, bool) & held
+    e = ref_um[:, :2] - y_um[:, :2]
+    if m.sum() < 2:
+        return float("nan"), float("nan")
+    out = []
+    for ax in range(2):
+        A = np.column_stack([v[m, ax], np.ones(int(m.sum()))])
+        out.append(1e3 * float(np.linalg.lstsq(A, e[m, ax], rcond=None)[0][0]))
+    return out[0], out[1]
+
+
 def _cycle(tr: LoopTrace, k: int, n: int) -> LoopTrace:
     sl = slice(k * n, (k + 1) * n)
     return LoopTrace(t_s=tr.t_s[sl] - tr.t_s[k * n], ref_um=tr.ref_um[sl], y_um=tr.y_um[sl],
@@ -136,7 +176,8 @@ def contouring(factory: StageFactory, controller, seed=0,
         ax_err = np.abs(cl.error_um[moving, :2]).max()
         cases.append(ContourCase(float(v), cl, d, float(d.mean()), float(d.max()), float(ax_err),
                                  conditioning_cycles=n_cond, first_cycle_mean_error_nm=float(d0.mean()),
-                                 first_cycle_max_error_nm=float(d0.max())))
+                                 first_cycle_max_error_nm=float(d0.max()),
+                                 ramp_lag_ms=ramp_lags_ms(cl.ref_um, cl.y_um, moving)))
     return cases
 
 
@@ -146,7 +187,9 @@ def _metrics(cases) -> dict:
                             "axis_tracking_error_um": c.axis_tracking_error_um,
                             "conditioning_cycles": c.conditioning_cycles,
                             "first_cycle_mean_error_nm": c.first_cycle_mean_error_nm,
-                            "first_cycle_max_error_nm": c.first_cycle_max_error_nm} for c in cases]}
+                            "first_cycle_max_error_nm": c.first_cycle_max_error_nm,
+                            "ramp_lag_ms": list(c.ramp_lag_ms), "lag_difference_us": c.lag_difference_us}
+                           for c in cases]}
 
 
 register(Experiment("contouring", run=lambda ctx: contouring(ctx.factory, ctx.controller, seed=ctx.seed,

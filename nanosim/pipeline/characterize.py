@@ -30,7 +30,7 @@ __all__ = ["stage_config", "make_factory", "make_plant_factory", "run_characteri
            "write_task_metrics", "METRICS_UNITS", "plant_description", "write_metrics"]
 
 # metrics.json's "units": the unit suffixes of its keys
-METRICS_UNITS = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds"}
+METRICS_UNITS = {"nm": "nanometres", "um": "micrometres", "hz": "Hz", "ms": "milliseconds", "us": "microseconds"}
 
 
 def plant_description(twin: bool) -> str:
