@@ -80,7 +80,8 @@ def test_pipeline_end_to_end(tmp_path):
     run("pipeline", "--out", str(run_dir), "--seed", "0")
     for name in ("modes.json", "identify.json", "design.json", "metrics.json", "twin/metrics.json", "report.md",
                  "report.html",
-                 "model.npz", "controller.npz", "fig14_hysteresis.png", "fig20_contouring.png"):
+                 "model.npz", "controller.npz", "fig14_hysteresis.png", "fig20_contouring.png", "budget.json",
+                 "fig_budget_cas.png"):
         assert (run_dir / name).is_file(), name
     ident = json.loads((run_dir / "identify.json").read_text())
     assert np.min(ident["fit_percent"]) >= 90.0                       # paper 88.5-96.1 %
@@ -113,6 +114,7 @@ def test_pipeline_end_to_end(tmp_path):
     assert fast["mean_error_nm"] <= 80.0                                 # paper 40 nm
     report = (run_dir / "report.md").read_text()
     assert "Paper vs simulation" in report and "![" in report and "linear twin" in report
+    assert "Noise budget, analytic (X axis)" in report
     checker = Path(__file__).resolve().parent / "data" / "shared" / "tools" / "compare_to_paper.py"
     p = subprocess.run([sys.executable, str(checker), str(run_dir)], capture_output=True, text=True)
     assert "inside their bands" in p.stdout, p.stdout + p.stderr

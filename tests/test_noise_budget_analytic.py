@@ -108,7 +108,7 @@ def test_budget_command_writes_its_run_folder(tmp_path):
     from nanosim.pipeline.report import write_report
     md, _ = write_report(out)
     text = md.read_text()
-    assert "## Noise budget (Y axis)" in text and "](fig_budget_cas.png)" in text
+    assert "## Noise budget, analytic (Y axis)" in text and "](fig_budget_cas.png)" in text
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a zip")
     assert main(["budget", "--controller", str(bad), "--out", str(tmp_path / "r2")]) == 2

@@ -181,7 +181,8 @@ def report_blocks(run) -> list:
         if sim:
             row.append(f"{sim[k]:.3g}" if k in sim else "")
         rows.append(row)
-    return [("h", 2, f"Noise budget ({doc['axis']} axis)"),
+    return [("h", 2, f"Noise budget, analytic ({doc['axis']} axis)"),
             ("p", f"`nanosim budget`: each source's spectrum through the closed loop with the linear twin, analytic "
-                  f"({doc['quantization']}). Controller: `{Path(doc['controller']).name}`."),
+                  f"({doc['quantization']}; where a quantizer is not dithered, the simulated budget measures its "
+                  f"share). Controller: `{Path(doc['controller']).name}`."),
             ("table", header, rows, None)]

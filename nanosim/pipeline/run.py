@@ -89,7 +89,8 @@ def step_report(out: Path) -> None:
     write_report(out)
 
 
-PIPELINE_STEPS = ("modes", "identify", "design", "characterize", "characterize_twin", "compensation", "report")
+PIPELINE_STEPS = ("modes", "identify", "design", "characterize", "characterize_twin", "compensation", "budget",
+                  "report")
 
 
 def _daemon_map(fn, items, workers: int):
@@ -284,6 +285,14 @@ def compensation_jobs(pool, run_dir: Path, seed: int, mjcf) -> list:
     return [pool.apply_async(fn, args) for fn, args in compensation_specs(run_dir, seed, mjcf)]
 
 
+def step_budget(run_dir: Path, mjcf=None) -> None:
+    """The analytic noise budget of the run's exported controller on X (:func:`nanosim.pipeline.budget.run_budget`:
+    ``budget.json``, ``budget.npz`` and its figures; the report's "Noise budget" section)."""
+    from nanosim.pipeline.budget import run_budget
+
+    run_budget(run_dir, Path(run_dir) / A.CONTROLLER_NPZ, axis=0, mjcf=mjcf)
+
+
 def write_compensation_results(run_dir: Path, results: list, seed: int) -> float:
     """Write the cases of :func:`compensation_jobs` (``[(case, seconds), ...]``) into ``run_dir``
     (``compensation.json`` and its figure); their seconds go to its ``timings.json``. Returns the step's
@@ -425,7 +434,10 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
     write_task_metrics(out, parts[False], cfg.seed)
     if twin_too:
         write_task_metrics(out / A.TWIN_DIR, parts[True], cfg.seed, twin=True, run_dir=out)
-    done("compensation", write_compensation_results(out, comp_results, cfg.seed))
+    done("compensation", write_compensation_results(out, comp_results, cfg.seed), "budget")
+    t0 = time.perf_counter()
+    step_budget(out, mj)
+    done("budget", round(time.perf_counter() - t0, 2))
     timings["overlapped_wall"] = round(time.perf_counter() - t_start, 2)
     write_json(out / A.PIPELINE_JSON, {"seed": cfg.seed})
     record_timings(out, {A.PIPELINE_JSON: {"stage_seconds": timings}})    # the report reads it

@@ -208,6 +208,7 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
     (:func:`_schedule`).
     """
     from nanosim.pipeline.report import pass_count, run_acceptance_doc, write_report
+    from nanosim.pipeline.run import step_budget
     from nanosim.pipeline.scaleout import cpu_workers
 
     cfg = config or PipelineConfig()
@@ -222,10 +223,12 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
     t = time.perf_counter()
     task_seconds = _schedule(out, seeds, cfg, max(1, min(2 * len(seeds), workers or cpu_workers())), say)
     timings["modes_identify_design_characterize"] = round(time.perf_counter() - t, 2)
-    t = time.perf_counter()
+    t = time.perf_counter()      # the noise budget (analytic, seconds) and the report of every seed
     per_seed = {}
+    mj = None if cfg.mjcf is None else str(cfg.mjcf)
     for s in seeds:
         d = _seed_dir(out, s)
+        step_budget(d, mj)
         write_json(d / A.PIPELINE_JSON, {"seed": s})
         record_timings(d, {A.PIPELINE_JSON: {"stage_seconds": {"shared_with_other_seeds": timings,
                                                                "task_seconds_all_seeds": task_seconds}}})
