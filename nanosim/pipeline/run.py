@@ -287,7 +287,8 @@ def compensation_jobs(pool, run_dir: Path, seed: int, mjcf) -> list:
 
 def step_budget(run_dir: Path, mjcf=None) -> None:
     """The analytic noise budget of the run's exported controller on X (:func:`nanosim.pipeline.budget.run_budget`:
-    ``budget.json``, ``budget.npz`` and its figures; the report's "Noise budget" section)."""
+    ``budget.json``, ``budget.npz`` and its figures; the report's "Noise budget" section).
+    """
     from nanosim.pipeline.budget import run_budget
 
     run_budget(run_dir, Path(run_dir) / A.CONTROLLER_NPZ, axis=0, mjcf=mjcf)
