@@ -35,8 +35,8 @@ def twin_stage():
 # from the bench's stated state (the controller reset at the home reading, a raised-cosine approach to the
 # pattern's first point) and is led in by one line period that is not imaged. The raster's fast axis
 # overscans the field by 2.5 um on each side: its trace image is built from the records taken while the
-# reference moves forward, and the table trails the reference by the loop's lag (about 5 ms, 2 um at this
-# speed); with the default overscan, which only clears the command interpolation's turnaround, the last
+# reference moves forward, and the table trails the reference by the loop's lag (about 5 ms, 2-3 um at
+# this line rate); with the default overscan, which only clears the command interpolation's turnaround, the last
 # 2 um of every line would not be imaged (``imaged_fraction``).
 sample = S.Sample(seed=0)
 results = {}
