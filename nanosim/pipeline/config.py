@@ -206,6 +206,11 @@ class PipelineConfig:
     def __post_init__(self):
         _check_seed(self.seed)
 
+    @property
+    def mjcf_arg(self) -> str | None:
+        """``mjcf`` as the worker tasks take it: a string path, or None for the bundled stage."""
+        return None if self.mjcf is None else str(self.mjcf)
+
 
 def _check_count(name: str, v, lo: int, allow_none: bool = False) -> None:
     if v is None and allow_none:

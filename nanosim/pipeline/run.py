@@ -287,7 +287,7 @@ def compensation_jobs(pool, run_dir: Path, seed: int, mjcf) -> list:
 
 def step_budget(run_dir: Path, mjcf=None) -> None:
     """The analytic noise budget of the run's exported controller on X (:func:`nanosim.pipeline.budget.run_budget`:
-    ``budget.json``, ``budget.npz`` and its figures; the report's "Noise budget" section).
+    ``budget.json``, ``budget.npz`` and its figures; the report's "Noise budget, analytic" section).
     """
     from nanosim.pipeline.budget import run_budget
 
@@ -349,7 +349,7 @@ def run_pipeline(out: Path, config: PipelineConfig | None = None, *, progress: b
                 bar.set_postfix_str(f"running {running}")
 
     t_start = time.perf_counter()
-    mj = None if cfg.mjcf is None else str(cfg.mjcf)
+    mj = cfg.mjcf_arg
     cores = min(2, os.cpu_count() or 1)
     # one worker more than cores: the design's analysis and figures (after controller.npz is final)
     # run beside the first experiments on the other workers

@@ -115,7 +115,7 @@ def _schedule(out: Path, seeds, cfg: PipelineConfig, workers: int, say) -> dict:
                                       modes_task, spawn_pool, stop_pool, write_compensation_results)
     from nanosim.pipeline.workers import stop_deferred
 
-    mj = None if cfg.mjcf is None else str(cfg.mjcf)
+    mj = cfg.mjcf_arg
     n_exp = len(experiments_names()) * (2 if cfg.characterize_twin_too else 1)
     totals = {"modes": 0.0, "identify": 0.0, "design": 0.0, "characterize": 0.0, "characterize_twin": 0.0,
               "compensation": 0.0}
@@ -225,7 +225,7 @@ def run_pipeline_seeds(out, seeds, config: PipelineConfig | None = None, *, prog
     timings["modes_identify_design_characterize"] = round(time.perf_counter() - t, 2)
     t = time.perf_counter()      # the noise budget (analytic, seconds) and the report of every seed
     per_seed = {}
-    mj = None if cfg.mjcf is None else str(cfg.mjcf)
+    mj = cfg.mjcf_arg
     for s in seeds:
         d = _seed_dir(out, s)
         step_budget(d, mj)
