@@ -185,6 +185,7 @@ def test_killed_run_leaves_no_worker_and_the_next_run_starts(previous, tmp_path)
         assert len(said) == 1 and f"pid {proc.pid}" in said[0]
         assert not (tmp_path / f".run.staging-{proc.pid}").exists()
         wait_until(_at_step("identification", run, log2), nxt, log2)    # its workers started (slow under load)
+        time.sleep(1.0)                          # inside the simulation, as test_stopped_during_identification
         stop_and_check(nxt, signal.SIGTERM, run, before, log2)
     finally:
         if nxt.poll() is None:
